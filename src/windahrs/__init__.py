@@ -1,0 +1,1 @@
+"""windahrs: UAV attitude estimation in wind."""

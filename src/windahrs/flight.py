@@ -1,0 +1,450 @@
+"""``Flight``: one record for simulated and real data.
+
+A Flight holds multi-rate sensor streams, each with its own strictly increasing time
+vector (float seconds), the site (gravity, magnetic field), and optionally the truth
+(simulation) or a labelled reference attitude (mocap, the autopilot's own estimate).
+Every source, simulator or log reader, produces one; every estimator consumes one.
+
+Validation happens once, at construction. Errors are :class:`FlightError` and name the
+field, what was expected and what was found.
+
+NaN policy: a sensor sample (a row) with a NaN in any component is a *missing* sample;
+estimators skip it and count it. Time stamps, truth and the site must be finite. Infinite
+values are never accepted.
+
+Units: SI (rad/s, m/s^2, tesla, m/s, rad). The plausibility checks below catch the usual
+slips (deg/s for rad/s, g for m/s^2, microtesla or gauss for tesla) and say how to fix them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from windahrs.conventions import G0
+
+__all__ = [
+    "AirDataStream",
+    "Flight",
+    "FlightError",
+    "GnssStream",
+    "ImuStream",
+    "MagStream",
+    "Reference",
+    "Site",
+    "Truth",
+    "WindStream",
+]
+
+F64 = NDArray[np.float64]
+ReferenceKind = Literal["truth", "mocap", "autopilot"]
+REFERENCE_KINDS: tuple[str, ...] = ("truth", "mocap", "autopilot")
+
+
+class FlightError(ValueError):
+    """A Flight field is malformed. ``field``, ``expected`` and ``found`` say how."""
+
+    def __init__(self, field_name: str, expected: str, found: str) -> None:
+        self.field = field_name
+        self.expected = expected
+        self.found = found
+        super().__init__(f"{field_name}: expected {expected}, found {found}")
+
+
+def _set(obj: object, name: str, value: object) -> None:
+    object.__setattr__(obj, name, value)
+
+
+def _as_array(name: str, value: ArrayLike, ndim: int, width: int | None) -> F64:
+    try:
+        a = np.ascontiguousarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise FlightError(name, "a numeric array", f"{type(value).__name__} ({exc})") from None
+    shape = "(N,)" if ndim == 1 else f"(N, {width})"
+    if a.ndim != ndim or (width is not None and a.shape[-1] != width):
+        raise FlightError(name, f"shape {shape}", str(a.shape))
+    if np.isinf(a).any():
+        i = int(np.argwhere(np.isinf(a))[0][0])
+        raise FlightError(name, "finite values or NaN for a missing sample", f"inf at row {i}")
+    return a
+
+
+def _check_time(name: str, t: ArrayLike) -> F64:
+    a = _as_array(name, t, 1, None)
+    if a.size == 0:
+        raise FlightError(name, "at least one sample", "an empty time vector")
+    if np.isnan(a).any():
+        raise FlightError(name, "finite time stamps", f"NaN at index {int(np.argmax(np.isnan(a)))}")
+    d = np.diff(a)
+    if (d <= 0).any():
+        i = int(np.argmax(d <= 0))
+        raise FlightError(
+            name, "strictly increasing time", f"t[{i}] = {a[i]!r} then t[{i + 1}] = {a[i + 1]!r}"
+        )
+    return a
+
+
+def _check_len(name: str, a: F64, n: int, tname: str) -> None:
+    if a.shape[0] != n:
+        raise FlightError(name, f"{n} rows (one per {tname} sample)", f"{a.shape[0]} rows")
+
+
+def _check_finite(name: str, a: F64) -> None:
+    if not np.isfinite(a).all():
+        i = int(np.argwhere(~np.isfinite(a))[0][0])
+        raise FlightError(name, "finite values", f"NaN at row {i}")
+
+
+def _median_norm(a: F64) -> float:
+    rows = a[np.isfinite(a).all(axis=1)]
+    return float(np.median(np.linalg.norm(rows, axis=1))) if len(rows) else float("nan")
+
+
+def _check_quat(name: str, q: F64) -> F64:
+    n = np.linalg.norm(q, axis=1)
+    bad = np.abs(n - 1.0) > 1e-3
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise FlightError(name, "unit quaternions [w, x, y, z]", f"norm {n[i]:.6g} at row {i}")
+    # Renormalise stored-precision quaternions; w >= 0 by convention.
+    return q * (np.where(q[:, :1] < 0, -1.0, 1.0) / n[:, None])
+
+
+@dataclass(frozen=True)
+class ImuStream:
+    """Gyroscope and accelerometer, sampled together.
+
+    t: (N,) s. w_b: (N, 3) body rate in rad/s (FRD), the mean over ``(t[k-1], t[k]]``.
+    f_b: (N, 3) specific force in m/s^2 (a level, resting FRD sensor reads [0, 0, -g]).
+    """
+
+    t: F64
+    w_b: F64
+    f_b: F64
+
+    def __post_init__(self) -> None:
+        t = _check_time("imu.t", self.t)
+        w = _as_array("imu.w_b", self.w_b, 2, 3)
+        f = _as_array("imu.f_b", self.f_b, 2, 3)
+        _check_len("imu.w_b", w, len(t), "imu.t")
+        _check_len("imu.f_b", f, len(t), "imu.t")
+        wn = float(np.nanmax(np.linalg.norm(w, axis=1))) if np.isfinite(w).any() else 0.0
+        if wn > 50.0:
+            raise FlightError(
+                "imu.w_b",
+                "rad/s (|w| below 50 rad/s)",
+                f"max |w| = {wn:.4g}: deg/s? multiply by pi/180",
+            )
+        fn = _median_norm(f)
+        if np.isfinite(fn) and not 2.0 < fn < 300.0:
+            hint = ": in g? multiply by 9.80665" if 0.2 < fn <= 2.0 else ""
+            raise FlightError("imu.f_b", "m/s^2 (median |f| between 2 and 300)", f"{fn:.4g}{hint}")
+        _set(self, "t", t)
+        _set(self, "w_b", w)
+        _set(self, "f_b", f)
+
+
+@dataclass(frozen=True)
+class MagStream:
+    """Magnetometer. t: (N,) s. mag_b: (N, 3) magnetic field in tesla, body axes."""
+
+    t: F64
+    mag_b: F64
+
+    def __post_init__(self) -> None:
+        t = _check_time("mag.t", self.t)
+        m = _as_array("mag.mag_b", self.mag_b, 2, 3)
+        _check_len("mag.mag_b", m, len(t), "mag.t")
+        mn = _median_norm(m)
+        if np.isfinite(mn) and not 1e-7 < mn < 1e-2:
+            hint = ""
+            if 5.0 < mn < 500.0:
+                hint = ": in microtesla? multiply by 1e-6"
+            elif 0.05 < mn < 5.0:
+                hint = ": in gauss? multiply by 1e-4"
+            raise FlightError(
+                "mag.mag_b", "tesla (median |m| between 1e-7 and 1e-2)", f"{mn:.4g}{hint}"
+            )
+        _set(self, "t", t)
+        _set(self, "mag_b", m)
+
+
+@dataclass(frozen=True)
+class GnssStream:
+    """GNSS velocity. t: (N,) s (time of validity). v_n: (N, 3) m/s, NED."""
+
+    t: F64
+    v_n: F64
+
+    def __post_init__(self) -> None:
+        t = _check_time("gnss.t", self.t)
+        v = _as_array("gnss.v_n", self.v_n, 2, 3)
+        _check_len("gnss.v_n", v, len(t), "gnss.t")
+        vmax = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else 0.0
+        if vmax > 400.0:
+            raise FlightError("gnss.v_n", "m/s (below 400)", f"max |component| = {vmax:.4g}")
+        _set(self, "t", t)
+        _set(self, "v_n", v)
+
+
+@dataclass(frozen=True)
+class AirDataStream:
+    """Air data. t: (N,) s. tas: (N,) true airspeed, m/s.
+
+    aoa, sideslip: (N,) angle of attack and sideslip in rad (FRD, SPEC 3.4.1:
+    ``alpha = atan2(w, u)``, ``beta = asin(v / |V|)``), or None when no vanes exist.
+    """
+
+    t: F64
+    tas: F64
+    aoa: F64 | None = None
+    sideslip: F64 | None = None
+
+    def __post_init__(self) -> None:
+        t = _check_time("air.t", self.t)
+        tas = _as_array("air.tas", self.tas, 1, None)
+        _check_len("air.tas", tas, len(t), "air.t")
+        if np.isfinite(tas).any() and float(np.nanmax(np.abs(tas))) > 400.0:
+            raise FlightError("air.tas", "m/s (below 400)", f"max {float(np.nanmax(tas)):.4g}")
+        _set(self, "t", t)
+        _set(self, "tas", tas)
+        for name in ("aoa", "sideslip"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            a = _as_array(f"air.{name}", v, 1, None)
+            _check_len(f"air.{name}", a, len(t), "air.t")
+            if np.isfinite(a).any() and float(np.nanmax(np.abs(a))) > np.pi:
+                raise FlightError(
+                    f"air.{name}",
+                    "rad (|angle| <= pi)",
+                    f"max {float(np.nanmax(np.abs(a))):.4g}: degrees?",
+                )
+            _set(self, name, a)
+        if (self.aoa is None) != (self.sideslip is None):
+            raise FlightError("air.aoa/air.sideslip", "both vanes or neither", "only one")
+
+    @property
+    def has_vanes(self) -> bool:
+        return self.aoa is not None
+
+
+@dataclass(frozen=True)
+class WindStream:
+    """A wind velocity series (e.g. a log's own wind estimate). wind_n: (N, 3) m/s NED,
+    the velocity of the air (where it blows TO)."""
+
+    t: F64
+    wind_n: F64
+
+    def __post_init__(self) -> None:
+        t = _check_time("ref_wind.t", self.t)
+        w = _as_array("ref_wind.wind_n", self.wind_n, 2, 3)
+        _check_len("ref_wind.wind_n", w, len(t), "ref_wind.t")
+        _set(self, "t", t)
+        _set(self, "wind_n", w)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Simulation truth on its own time grid (the IMU grid for simulated flights).
+
+    q_nb: (N, 4) attitude. Optional: v_n (N, 3) m/s, wind_n (N, 3) m/s (velocity of the
+    air), gyro_bias_b (N, 3) rad/s, accel_bias_b (N, 3) m/s^2, p_n (N, 3) m NED position.
+    """
+
+    t: F64
+    q_nb: F64
+    v_n: F64 | None = None
+    wind_n: F64 | None = None
+    gyro_bias_b: F64 | None = None
+    accel_bias_b: F64 | None = None
+    p_n: F64 | None = None
+
+    def __post_init__(self) -> None:
+        t = _check_time("truth.t", self.t)
+        q = _as_array("truth.q_nb", self.q_nb, 2, 4)
+        _check_len("truth.q_nb", q, len(t), "truth.t")
+        _check_finite("truth.q_nb", q)
+        _set(self, "t", t)
+        _set(self, "q_nb", _check_quat("truth.q_nb", q))
+        for name in ("v_n", "wind_n", "gyro_bias_b", "accel_bias_b", "p_n"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            a = _as_array(f"truth.{name}", v, 2, 3)
+            _check_len(f"truth.{name}", a, len(t), "truth.t")
+            _check_finite(f"truth.{name}", a)
+            _set(self, name, a)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference attitude from a real recording, labelled by what it is.
+
+    kind: "mocap" (optical motion capture), "autopilot" (the flight stack's own
+    estimate) or "truth". q_nb: (N, 4); rows with NaN are gaps and are not scored.
+    heading_free: the reference's heading datum is arbitrary (mocap), so scores remove a
+    constant heading offset. mask: optional (N,) bool, samples to score.
+    """
+
+    t: F64
+    q_nb: F64
+    kind: ReferenceKind = "autopilot"
+    heading_free: bool = False
+    mask: NDArray[np.bool_] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in REFERENCE_KINDS:
+            raise FlightError("reference.kind", f"one of {REFERENCE_KINDS}", repr(self.kind))
+        t = _check_time("reference.t", self.t)
+        q = _as_array("reference.q_nb", self.q_nb, 2, 4)
+        _check_len("reference.q_nb", q, len(t), "reference.t")
+        ok = np.isfinite(q).all(axis=1)
+        qn = q.copy()
+        qn[ok] = _check_quat("reference.q_nb", q[ok])
+        qn[~ok] = np.nan
+        _set(self, "t", t)
+        _set(self, "q_nb", qn)
+        if self.mask is not None:
+            m = np.asarray(self.mask)
+            if m.shape != t.shape or m.dtype != np.bool_:
+                raise FlightError(
+                    "reference.mask", f"bool array of shape {t.shape}", f"{m.dtype} {m.shape}"
+                )
+            _set(self, "mask", m)
+
+
+@dataclass(frozen=True)
+class Site:
+    """Where the flight happened.
+
+    gravity: m/s^2 (magnitude; the vector is [0, 0, gravity] in NED).
+    mag_n: (3,) Earth's magnetic field in NED, tesla, or None when unknown (estimators
+    then take the horizontal direction as magnetic north and the dip from the data).
+    """
+
+    gravity: float = G0
+    mag_n: F64 | None = None
+
+    def __post_init__(self) -> None:
+        g = float(self.gravity)
+        if not np.isfinite(g) or not 9.7 < g < 9.9:
+            raise FlightError("site.gravity", "m/s^2 between 9.7 and 9.9", repr(self.gravity))
+        _set(self, "gravity", g)
+        if self.mag_n is not None:
+            m = np.asarray(self.mag_n, dtype=np.float64)
+            if m.shape != (3,) or not np.isfinite(m).all():
+                raise FlightError("site.mag_n", "finite (3,) vector in tesla", f"{m.shape} {m}")
+            n = float(np.linalg.norm(m))
+            if not 1e-6 < n < 1e-3:
+                raise FlightError("site.mag_n", "tesla (|m| between 1e-6 and 1e-3)", f"{n:.4g}")
+            _set(self, "mag_n", m)
+
+    @property
+    def gravity_n(self) -> F64:
+        return np.array([0.0, 0.0, self.gravity])
+
+
+@dataclass(frozen=True)
+class Flight:
+    """Sensor streams, site and optional truth or reference of one flight.
+
+    imu is required; mag, gnss, air are optional streams. truth (simulation) and
+    reference (real data) are what estimates are scored against. meta: free-form
+    str -> str/float/int description (source file, vehicle, scenario, seed).
+    """
+
+    imu: ImuStream
+    mag: MagStream | None = None
+    gnss: GnssStream | None = None
+    air: AirDataStream | None = None
+    truth: Truth | None = None
+    reference: Reference | None = None
+    ref_wind: WindStream | None = None
+    site: Site = field(default_factory=Site)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        types = {
+            "imu": ImuStream,
+            "mag": MagStream,
+            "gnss": GnssStream,
+            "air": AirDataStream,
+            "truth": Truth,
+            "reference": Reference,
+            "ref_wind": WindStream,
+            "site": Site,
+        }
+        for name, typ in types.items():
+            v = getattr(self, name)
+            if v is None and name != "imu" and name != "site":
+                continue
+            if not isinstance(v, typ):
+                raise FlightError(name, typ.__name__, type(v).__name__)
+        for k, v in self.meta.items():
+            if not isinstance(k, str) or not isinstance(v, str | int | float | bool):
+                raise FlightError(f"meta[{k!r}]", "str, int, float or bool", type(v).__name__)
+
+    @property
+    def duration(self) -> float:
+        """Span of the IMU stream, s."""
+        return float(self.imu.t[-1] - self.imu.t[0])
+
+    def streams(self) -> dict[str, F64]:
+        """Time vectors of the sensor streams present, by name."""
+        out = {"imu": self.imu.t}
+        for name in ("mag", "gnss", "air"):
+            s = getattr(self, name)
+            if s is not None:
+                out[name] = s.t
+        return out
+
+    def replace(self, **changes: Any) -> Flight:
+        """A copy with some fields replaced (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def summary(self) -> str:
+        """Human-readable description: streams, rates, duration, truth/reference."""
+        lines = [f"duration   {self.duration:.2f} s"]
+        for name, t in self.streams().items():
+            stream = getattr(self, name)
+            lines.append(f"{name:<10} {_rate_text(t)}{_missing_text(stream)}")
+        if self.air is not None:
+            lines.append(f"{'':<10} vanes (aoa, sideslip): {'yes' if self.air.has_vanes else 'no'}")
+        lines.append(f"truth      {'yes' if self.truth is not None else 'no'}")
+        if self.reference is not None:
+            ref = self.reference
+            lines.append(f"reference  {ref.kind}, {_rate_text(ref.t)}")
+        if self.site.mag_n is not None:
+            m = self.site.mag_n * 1e6
+            field_text = f"[{m[0]:.2f}, {m[1]:.2f}, {m[2]:.2f}] uT"
+            lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n = {field_text}")
+        else:
+            lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n unknown")
+        for k, v in sorted(self.meta.items()):
+            lines.append(f"meta       {k} = {v}")
+        return "\n".join(lines)
+
+
+def _rate_text(t: F64) -> str:
+    if len(t) < 2:
+        return f"{len(t)} sample"
+    rate = 1.0 / float(np.median(np.diff(t)))
+    gaps = int(np.sum(np.diff(t) > 1.5 / rate))
+    gap_text = f", {gaps} gaps" if gaps else ""
+    return f"{len(t)} samples at {rate:.4g} Hz{gap_text}"
+
+
+def _missing_text(stream: object) -> str:
+    arrays = [v for v in vars(stream).values() if isinstance(v, np.ndarray) and v.ndim >= 1]
+    rows = arrays[0].shape[0]
+    missing = np.zeros(rows, dtype=bool)
+    for a in arrays[1:]:
+        missing |= ~np.isfinite(a.reshape(rows, -1)).all(axis=1)
+    n = int(missing.sum())
+    return f", {n} missing" if n else ""

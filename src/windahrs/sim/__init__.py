@@ -1,0 +1,1 @@
+"""Flight, wind and sensor simulation."""

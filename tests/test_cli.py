@@ -1,0 +1,98 @@
+"""The command line: simulate and info, their output, and their errors."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from windahrs.cli import main
+
+
+def test_simulate_then_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "fw.h5"
+    rc = main(
+        [
+            "simulate",
+            "--vehicle",
+            "fixedwing",
+            "--wind",
+            "8",
+            "--duration",
+            "5",
+            "--seed",
+            "3",
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 0 and out.is_file()
+    text = capsys.readouterr().out
+    assert "imu        1001 samples at 200 Hz" in text
+    assert "air        251 samples at 50 Hz" in text
+    assert main(["info", str(out)]) == 0
+    info = capsys.readouterr().out
+    assert f"file       {out}" in info
+    assert "truth      yes" in info and "meta       seed = 3" in info
+    assert "gnss       51 samples at 10 Hz" in info
+
+
+@pytest.mark.parametrize("vehicle", ["quadrotor", "paper"])
+def test_simulate_other_vehicles(
+    vehicle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "f.h5"
+    assert (
+        main(
+            ["simulate", "--vehicle", vehicle, "--wind", "5", "--duration", "3", "--out", str(out)]
+        )
+        == 0
+    )
+    assert f"vehicle = {vehicle}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--duration", "-3"], "duration: expected > 0 s, found -3.0"),
+        (["--wind", "-1"], "wind: expected W20 >= 0 m/s, found -1.0"),
+        (["--seed", "-1"], "--seed: expected an integer >= 0, found -1"),
+        (["--altitude", "1"], "altitude: expected 2 to 3000 m, found 1.0"),
+    ],
+)
+def test_simulate_bad_input_writes_nothing(
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "x.h5"
+    assert main(["simulate", *args, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert os.listdir(tmp_path) == []
+
+
+def test_unknown_vehicle_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["simulate", "--vehicle", "rocket", "--out", "x.h5"])
+    assert info.value.code == 2
+    assert "invalid choice: 'rocket'" in capsys.readouterr().err
+
+
+def test_info_on_truncated_and_missing_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "fw.h5"
+    main(["simulate", "--duration", "2", "--out", str(out)])
+    (tmp_path / "t.h5").write_bytes(out.read_bytes()[:3000])
+    assert main(["info", str(tmp_path / "t.h5")]) == 2
+    assert "truncated or corrupt" in capsys.readouterr().err
+    assert main(["info", str(tmp_path / "none.h5")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_console_script_help_lists_commands() -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "windahrs.cli", "--help"], capture_output=True, text=True, check=True
+    )
+    assert "simulate" in res.stdout and "info" in res.stdout
