@@ -21,7 +21,7 @@ from windahrs.sim.sensors import SensorSuite
 from windahrs.sim.wind import dryden_gusts, dryden_psd, low_altitude_params
 
 
-def gravity_angle_deg(f) -> np.ndarray:  # noqa: ANN001
+def gravity_angle_deg(f) -> np.ndarray:
     up_b = quat_rotate_inv(f.truth.q_nb, [0.0, 0.0, -1.0])
     c = np.sum(f.imu.f_b * up_b, axis=1) / np.linalg.norm(f.imu.f_b, axis=1)
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
@@ -71,7 +71,8 @@ def main() -> None:
         for s in range(args.seeds)
     ]
     print(
-        f"fixed wing level, 50 m, W20 = 8: mean angle f vs gravity = {np.mean(fw):.2f} deg  (per seed {np.round(fw, 2)})"
+        f"fixed wing level, 50 m, W20 = 8: mean angle f vs gravity = {np.mean(fw):.2f} deg"
+        f"  (per seed {np.round(fw, 2)})"
     )
     qsuite = SensorSuite(pitot=None, vanes=None).noiseless()
     for w20 in (5.0, 8.0):
@@ -91,7 +92,8 @@ def main() -> None:
             for s in range(args.seeds)
         ]
         print(
-            f"quadrotor hold, 20 m, W20 = {w20:.0f}: gravity-only tilt error RMS = {np.mean(qd):.2f} deg  (per seed {np.round(qd, 2)})"
+            f"quadrotor hold, 20 m, W20 = {w20:.0f}: gravity-only tilt error RMS = {np.mean(qd):.2f} deg"
+            f"  (per seed {np.round(qd, 2)})"
         )
     print(f"({time.perf_counter() - t0:.0f} s)")
 
