@@ -11,9 +11,14 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
+
+if TYPE_CHECKING:
+    from windahrs.flight import Flight
+    from windahrs.metrics import Score
 
 __all__ = ["main"]
 
@@ -28,13 +33,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     if args.seed < 0:
         raise UsageError(f"--seed: expected an integer >= 0, found {args.seed}")
-    scenario = make_scenario(
-        args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude
-    )
+    scenario = make_scenario(args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude)
     # Shown on a terminal only (tqdm's disable=None); stages, as the work is vectorised.
-    with tqdm(
-        total=2, desc=f"simulate {args.vehicle}", unit="stage", disable=None, file=sys.stderr
-    ) as bar:
+    with tqdm(total=2, desc=f"simulate {args.vehicle}", unit="stage", disable=None, file=sys.stderr) as bar:
         flight = simulate(scenario, np.random.default_rng(args.seed))
         flight = flight.replace(meta={**flight.meta, "seed": args.seed})
         bar.update(1)
@@ -46,12 +47,91 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_filters(args: argparse.Namespace) -> int:
+    from windahrs.filters.registry import REGISTRY, names
+
+    available = set(names())
+    for name, (_, _, text) in REGISTRY.items():
+        mark = "" if name in available else "  (not installed)"
+        print(f"{name:<14}{text}{mark}")
+    return 0
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
     from windahrs.store import load_flight
 
     flight = load_flight(args.file)
     print(f"file       {args.file}")
     print(flight.summary())
+    return 0
+
+
+def _read(path: Path) -> Flight:
+    """A flight file or a log/dataset the readers know."""
+    from windahrs.io import read_flight
+
+    return read_flight(path)
+
+
+def _score_line(sc: Score) -> str:
+    r = sc.rmse_from50_deg
+    s = sc.rmse_steady_deg
+    return (
+        f"RMSE vs {sc.reference} from sample 50: roll {r[0]:.3f} pitch {r[1]:.3f} yaw {r[2]:.3f} deg, "
+        f"total {sc.rmse_total_deg:.3f} deg, tilt {sc.rmse_tilt_deg:.3f} deg; "
+        f"second half: roll {s[0]:.3f} pitch {s[1]:.3f} yaw {s[2]:.3f} deg"
+    )
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    from windahrs.estimate import save_estimate
+    from windahrs.filters.registry import make_estimator
+    from windahrs.metrics import reference_of, score
+
+    est = make_estimator(args.filter, args.params)
+    flight = _read(args.file)
+    result = est.run(flight)
+    if args.out is not None:
+        save_estimate(result, args.out)
+        print(f"wrote {args.out}")
+    skipped = {k: v for k, v in result.skipped.items() if v}
+    if skipped:
+        print(f"skipped NaN samples: {skipped}")
+    try:
+        reference_of(flight)
+    except ValueError:
+        print("no truth or reference in the flight: nothing to score")
+        return 0
+    print(f"{args.filter}: {_score_line(score(result, flight))}")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    import json
+
+    from windahrs.filters.registry import make_estimator
+    from windahrs.metrics import score
+
+    names = [n.strip() for n in args.filters.split(",") if n.strip()]
+    if not names:
+        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
+    estimators = [make_estimator(n) for n in names]  # fail on a bad name before any work
+    flight = _read(args.file)
+    rows = []
+    for est in tqdm(estimators, desc="compare", disable=None, file=sys.stderr):
+        rows.append(score(est.run(flight), flight))
+    if args.json:
+        print(json.dumps([r.as_dict() for r in rows], indent=1))
+        return 0
+    print(f"RMSE in deg against {rows[0].reference}; from sample 50 | second half")
+    axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
+    print(f"{'filter':<14}{axes}{axes}{'tilt':>8}{'total':>8}")
+    for r in rows:
+        a, b = r.rmse_from50_deg, r.rmse_steady_deg
+        print(
+            f"{r.filter:<14}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
+            f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}"
+        )
     return 0
 
 
@@ -113,6 +193,38 @@ def _parser() -> argparse.ArgumentParser:
     )
     i.add_argument("file", type=Path, metavar="FILE.h5")
     i.set_defaults(func=_cmd_info)
+
+    e = sub.add_parser(
+        "estimate",
+        help="run one estimator on a flight or log; print its RMSE when there is truth or a reference",
+        description="Run one estimator (see 'windahrs filters') over a flight file or log and write "
+        "its Estimate (attitude, bias, wind, covariance, innovations) as HDF5.",
+    )
+    e.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file or a log")
+    e.add_argument("--filter", required=True, metavar="NAME", help="estimator name, e.g. ins-wind")
+    e.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        metavar="FILE.toml",
+        help="parameters: [windahrs] fields, or [px4] / [ardupilot] parameter names",
+    )
+    e.add_argument("--out", type=Path, default=None, metavar="EST.h5", help="write the Estimate here")
+    e.set_defaults(func=_cmd_estimate)
+
+    c = sub.add_parser(
+        "compare",
+        help="run several estimators on one flight and print their RMSE side by side",
+        description="RMSE per axis from sample 50 and over the second half, tilt and total, per estimator, "
+        "against the flight's truth (simulation) or reference (mocap, autopilot).",
+    )
+    c.add_argument("file", type=Path, metavar="FILE")
+    c.add_argument("--filters", required=True, metavar="A,B,...", help="comma-separated estimator names")
+    c.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
+    c.set_defaults(func=_cmd_compare)
+
+    fl = sub.add_parser("filters", help="list the estimators", description="List the registered estimators.")
+    fl.set_defaults(func=_cmd_filters)
     return p
 
 

@@ -1,0 +1,161 @@
+"""``Estimate``: what every estimator returns, and its HDF5 form.
+
+One row per IMU sample: attitude, gyro bias, velocity and wind where estimated, and the
+covariance of the error state in the tangent space, labelled per dimension. Per-sensor
+innovations carry the normalised innovation squared (NIS) and whether the update was
+accepted by its gate. Samples with NaN are skipped by the estimators and counted here.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from windahrs.flight import FlightError
+from windahrs.store import StoreError, atomic_h5, open_h5, read_record, write_record
+
+__all__ = ["ESTIMATE_FORMAT", "Estimate", "Innovations", "load_estimate", "save_estimate"]
+
+F64 = NDArray[np.float64]
+ESTIMATE_FORMAT = "windahrs.estimate"
+ESTIMATE_VERSION = 1
+
+#: Labels of error-state dimensions. Attitude errors are body-frame rotation vectors (rad).
+STATE_LABELS: dict[str, tuple[str, ...]] = {
+    "att": ("att_x", "att_y", "att_z"),
+    "bg": ("bg_x", "bg_y", "bg_z"),
+    "v": ("v_n", "v_e", "v_d"),
+    "wind": ("wind_n", "wind_e", "wind_d"),
+    "wind2": ("wind_n", "wind_e"),
+    "ba": ("ba_x", "ba_y", "ba_z"),
+    "quat": ("q_w", "q_x", "q_y", "q_z"),
+}
+
+
+@dataclass(frozen=True)
+class Innovations:
+    """Innovations of one sensor. t (M,) s; nu (M, m) innovation z - h(x) in the
+    measurement's units; nis (M,) nu^T S^-1 nu; accepted (M,) bool (False: rejected by the
+    gate, the state was not updated)."""
+
+    t: F64
+    nu: F64
+    nis: F64
+    accepted: NDArray[np.bool_]
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name in ("nu", "nis", "accepted"):
+            if len(getattr(self, name)) != n:
+                raise FlightError(f"innovations.{name}", f"{n} rows", f"{len(getattr(self, name))}")
+
+    @property
+    def dim(self) -> int:
+        return int(self.nu.shape[1]) if self.nu.ndim == 2 else 1
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The output of an estimator run on a Flight.
+
+    filter: registry name; t (N,) s (the IMU times); q_nb (N, 4); gyro_bias_b (N, 3)
+    rad/s or None; v_n (N, 3) m/s or None; wind_n (N, 3) m/s (velocity of the air) or
+    None; cov (N, n, n) error-state covariance with ``state_labels`` (n,) naming each
+    dimension (attitude errors are body-frame rotation vectors, rad) or None;
+    innovations per sensor; skipped: NaN samples skipped per stream; params: text of the
+    parameters used; meta: free-form.
+    """
+
+    filter: str
+    t: F64
+    q_nb: F64
+    gyro_bias_b: F64 | None = None
+    v_n: F64 | None = None
+    wind_n: F64 | None = None
+    cov: F64 | None = None
+    state_labels: tuple[str, ...] = ()
+    innovations: dict[str, Innovations] = field(default_factory=dict)
+    skipped: dict[str, int] = field(default_factory=dict)
+    params: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        if self.q_nb.shape != (n, 4):
+            raise FlightError("estimate.q_nb", f"shape ({n}, 4)", str(self.q_nb.shape))
+        for name in ("gyro_bias_b", "v_n", "wind_n"):
+            v = getattr(self, name)
+            if v is not None and v.shape != (n, 3):
+                raise FlightError(f"estimate.{name}", f"shape ({n}, 3)", str(v.shape))
+        if self.cov is not None:
+            m = len(self.state_labels)
+            if self.cov.shape != (n, m, m):
+                raise FlightError(
+                    "estimate.cov", f"shape ({n}, {m}, {m}) from state_labels", str(self.cov.shape)
+                )
+
+    def block(self, prefix: str) -> F64 | None:
+        """Covariance block (N, k, k) of the dimensions whose labels start with ``prefix``
+        (e.g. "att", "bg", "wind"), or None when absent."""
+        if self.cov is None:
+            return None
+        idx = [i for i, lab in enumerate(self.state_labels) if lab.startswith(prefix)]
+        if not idx:
+            return None
+        return self.cov[:, idx][:, :, idx]
+
+    def att_cov(self) -> F64 | None:
+        """Attitude error covariance (N, 3, 3), body-frame rotation vector, rad^2."""
+        return self.block("att_")
+
+
+def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
+    """Write an Estimate to HDF5 (format ``windahrs.estimate`` v1), atomically."""
+    with atomic_h5(path, ESTIMATE_FORMAT, ESTIMATE_VERSION) as f:
+        f.attrs["filter"] = est.filter
+        f.attrs["params"] = est.params
+        f.attrs["state_labels"] = ",".join(est.state_labels)
+        for name in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov"):
+            v = getattr(est, name)
+            if v is not None:
+                f.create_dataset(name, data=v, compression="gzip", compression_opts=1, shuffle=True)
+        g = f.create_group("innovations")
+        for sensor, inn in est.innovations.items():
+            write_record(g.create_group(sensor), inn)
+        sk = f.create_group("skipped")
+        for k, v in est.skipped.items():
+            sk.attrs[k] = v
+        meta = f.create_group("meta")
+        for k, v in est.meta.items():
+            meta.attrs[k] = v
+    return Path(path)
+
+
+def load_estimate(path: str | os.PathLike[str]) -> Estimate:
+    """Read an Estimate written by :func:`save_estimate` (StoreError on a bad file)."""
+    try:
+        with open_h5(path, ESTIMATE_FORMAT, (ESTIMATE_VERSION,)) as f:
+            labels = str(f.attrs["state_labels"])
+            arrays = {k: f[k][()] for k in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov") if k in f}
+            inns = {
+                k: read_record(g, Innovations, f"{path}:/innovations/{k}")
+                for k, g in f["innovations"].items()
+            }
+            return Estimate(
+                filter=str(f.attrs["filter"]),
+                params=str(f.attrs["params"]),
+                state_labels=tuple(labels.split(",")) if labels else (),
+                innovations=inns,
+                skipped={k: int(v) for k, v in f["skipped"].attrs.items()},
+                meta=dict(f["meta"].attrs.items()),
+                **arrays,
+            )
+    except (KeyError, OSError) as exc:
+        if isinstance(exc, StoreError):
+            raise
+        raise StoreError(f"{path}: unreadable estimate ({exc})") from None

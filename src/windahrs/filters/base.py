@@ -1,0 +1,345 @@
+"""What every estimator shares: the streaming interface, the batch driver that replays
+a Flight through it in time order, initial states, and the errors for missing sensors.
+
+An estimator is built from frozen parameters and turns a Flight into an Estimate with
+:meth:`Estimator.run`. The same estimator also runs sample by sample through a
+:class:`Streamer` (as it would on a companion computer fed live from an autopilot); a run
+fed sample by sample equals the batch run, because ``run`` is that replay (or, for the
+compiled filters, the same compiled step functions called from a compiled loop).
+
+Event order: samples are processed in time order; at equal times the IMU sample comes
+first (propagation to ``t``), then magnetometer, GNSS and air data. The state recorded
+for IMU sample ``k`` is the state after every sample with ``t <= t_imu[k]`` and before the
+next IMU sample.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from windahrs.estimate import Estimate, Innovations
+from windahrs.flight import Flight, Site
+from windahrs.rotation import dcm_from_quat, quat_from_euler
+
+__all__ = [
+    "EVENT_AIR",
+    "EVENT_GNSS",
+    "EVENT_IMU",
+    "EVENT_MAG",
+    "Estimator",
+    "InitialState",
+    "MissingSensorError",
+    "StateView",
+    "Streamer",
+    "merge_events",
+    "triad",
+]
+
+F64 = NDArray[np.float64]
+
+EVENT_IMU, EVENT_MAG, EVENT_GNSS, EVENT_AIR = 0, 1, 2, 3
+SENSOR_NAMES = {"imu": "the IMU", "mag": "a magnetometer", "gnss": "GNSS velocity", "air": "air data"}
+
+
+class MissingSensorError(ValueError):
+    """The flight lacks a sensor the filter needs."""
+
+    def __init__(self, filter_name: str, sensor: str, detail: str = "") -> None:
+        self.filter = filter_name
+        self.sensor = sensor
+        what = SENSOR_NAMES.get(sensor, sensor)
+        super().__init__(
+            f"filter {filter_name!r} needs {what} ({sensor!r}), which the flight does not have{detail}"
+        )
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """A known initial state (e.g. the truth of a simulation). q_nb (4,); the rest (3,)
+    or None (estimated from the data / zero). sigma_att rad, sigma_bias rad/s,
+    sigma_v m/s, sigma_wind m/s: initial standard deviations per axis (None: the
+    filter's own defaults)."""
+
+    q_nb: F64
+    gyro_bias_b: F64 | None = None
+    v_n: F64 | None = None
+    wind_n: F64 | None = None
+    sigma_att: float | None = None
+    sigma_bias: float | None = None
+    sigma_v: float | None = None
+    sigma_wind: float | None = None
+
+    @classmethod
+    def from_truth(
+        cls, flight: Flight, *, sigma_att: float | None = None, **sigmas: float | None
+    ) -> InitialState:
+        """The truth at the first IMU sample (raises ValueError without truth)."""
+        tr = flight.truth
+        if tr is None:
+            raise ValueError("initial: the flight has no truth to start from")
+        k = int(np.searchsorted(tr.t, flight.imu.t[0]))
+
+        def at(a: F64 | None) -> F64 | None:
+            return None if a is None else a[k].copy()
+
+        return cls(
+            q_nb=tr.q_nb[k].copy(),
+            gyro_bias_b=at(tr.gyro_bias_b),
+            v_n=at(tr.v_n),
+            wind_n=at(tr.wind_n),
+            sigma_att=sigma_att,
+            **sigmas,
+        )
+
+
+@dataclass(frozen=True)
+class StateView:
+    """The current estimate of a streamer: t s, q_nb (4,), gyro_bias_b (3,), v_n and
+    wind_n (3,) or None, cov (n, n) error-state covariance labelled by state_labels."""
+
+    t: float
+    q_nb: F64
+    gyro_bias_b: F64 | None
+    v_n: F64 | None
+    wind_n: F64 | None
+    cov: F64 | None
+    state_labels: tuple[str, ...]
+
+
+def triad(f_b: F64, mag_b: F64 | None, mag_n: F64 | None) -> F64:
+    """Attitude q_nb from one specific-force sample and (optionally) one magnetometer sample.
+
+    Roll and pitch come from ``f_b`` (assumed to be gravity only: ``f_b = -C_bn g_n``); yaw
+    from the horizontal magnetic field compared with ``mag_n`` (its declination), or 0 when
+    there is no magnetometer sample.
+    """
+    # A resting accelerometer reads f_b = -C_bn g_n = C_bn (up), so f/|f| is "up" in the body.
+    up_b = np.asarray(f_b, dtype=np.float64)
+    up_b = up_b / np.linalg.norm(up_b)
+    roll = np.arctan2(-up_b[1], -up_b[2])
+    pitch = np.arcsin(np.clip(up_b[0], -1.0, 1.0))
+    q_level = quat_from_euler([roll, pitch, 0.0])
+    if mag_b is None or not np.isfinite(mag_b).all():
+        return q_level
+    m_level = dcm_from_quat(q_level) @ np.asarray(mag_b, dtype=np.float64)
+    yaw_meas = -np.arctan2(m_level[1], m_level[0])
+    decl = 0.0 if mag_n is None else float(np.arctan2(mag_n[1], mag_n[0]))
+    return quat_from_euler([roll, pitch, yaw_meas + decl])
+
+
+class Streamer(ABC):
+    """A running estimator fed one timestamped sample at a time, in time order.
+
+    Feed any stream in any interleaving, as long as time does not go backwards. NaN
+    samples are skipped and counted in ``skipped``. ``state`` gives the current estimate.
+    """
+
+    def __init__(self, filter_name: str) -> None:
+        self.filter_name = filter_name
+        self.skipped: dict[str, int] = {"imu": 0, "mag": 0, "gnss": 0, "air": 0}
+        self._inn: dict[str, list[tuple[float, F64, float, bool]]] = {}
+        self._t_last = -np.inf
+
+    def _clock(self, t: float, name: str) -> None:
+        if t < self._t_last:
+            raise ValueError(
+                f"{name}.t: expected time not before the last sample ({self._t_last!r}), found {t!r}"
+            )
+        self._t_last = t
+
+    def _log(self, sensor: str, t: float, nu: F64, nis: float, accepted: bool) -> None:
+        self._inn.setdefault(sensor, []).append((t, np.array(nu, dtype=np.float64, ndmin=1), nis, accepted))
+
+    def innovations(self) -> dict[str, Innovations]:
+        """Innovations logged so far, per sensor."""
+        out = {}
+        for k, rows in self._inn.items():
+            out[k] = Innovations(
+                t=np.array([r[0] for r in rows]),
+                nu=np.stack([r[1] for r in rows]),
+                nis=np.array([r[2] for r in rows]),
+                accepted=np.array([r[3] for r in rows], dtype=bool),
+            )
+        return out
+
+    def push(self, kind: int, t: float, values: F64) -> None:
+        """Dispatch one sample; ``values`` as in the Flight stream (IMU: [w_b, f_b] (6,);
+        mag: (3,); GNSS: (3,); air: [tas, aoa, sideslip] (3,), NaN angles without vanes)."""
+        if kind == EVENT_IMU:
+            self.imu(t, values[:3], values[3:6])
+        elif kind == EVENT_MAG:
+            self.mag(t, values[:3])
+        elif kind == EVENT_GNSS:
+            self.gnss(t, values[:3])
+        elif kind == EVENT_AIR:
+            self.air(t, float(values[0]), float(values[1]), float(values[2]))
+        else:
+            raise ValueError(f"kind: expected 0 (imu), 1 (mag), 2 (gnss) or 3 (air), found {kind!r}")
+
+    def imu(self, t: float, w_b: F64, f_b: F64) -> None:
+        """Gyro (rad/s) and specific force (m/s^2) sample at t (s)."""
+        self._clock(t, "imu")
+        if not (np.isfinite(w_b).all() and np.isfinite(f_b).all()):
+            self.skipped["imu"] += 1
+            return
+        self._imu(t, np.asarray(w_b, dtype=np.float64), np.asarray(f_b, dtype=np.float64))
+
+    def mag(self, t: float, mag_b: F64) -> None:
+        """Magnetometer sample (tesla, body) at t."""
+        self._clock(t, "mag")
+        if not np.isfinite(mag_b).all():
+            self.skipped["mag"] += 1
+            return
+        self._mag(t, np.asarray(mag_b, dtype=np.float64))
+
+    def gnss(self, t: float, v_n: F64) -> None:
+        """GNSS velocity sample (m/s, NED) at t."""
+        self._clock(t, "gnss")
+        if not np.isfinite(v_n).all():
+            self.skipped["gnss"] += 1
+            return
+        self._gnss(t, np.asarray(v_n, dtype=np.float64))
+
+    def air(self, t: float, tas: float, aoa: float = np.nan, sideslip: float = np.nan) -> None:
+        """Air-data sample: true airspeed m/s, angle of attack and sideslip rad (NaN: no vanes)."""
+        self._clock(t, "air")
+        if not np.isfinite(tas):
+            self.skipped["air"] += 1
+            return
+        self._air(t, float(tas), float(aoa), float(sideslip))
+
+    @abstractmethod
+    def _imu(self, t: float, w_b: F64, f_b: F64) -> None: ...
+
+    def _mag(self, t: float, mag_b: F64) -> None:
+        """Default: the filter does not use the magnetometer."""
+
+    def _gnss(self, t: float, v_n: F64) -> None:
+        """Default: the filter does not use GNSS velocity."""
+
+    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
+        """Default: the filter does not use air data."""
+
+    @property
+    @abstractmethod
+    def state(self) -> StateView: ...
+
+
+def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.int64], F64]:
+    """All samples of the streams in ``use`` in processing order.
+
+    Returns times (E,), kinds (E,) (EVENT_* codes) and values (E, 6) (IMU: w_b, f_b;
+    mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN).
+    """
+    parts: list[tuple[F64, int, F64]] = []
+    imu = flight.imu
+    parts.append((imu.t, EVENT_IMU, np.hstack([imu.w_b, imu.f_b])))
+    if "mag" in use and flight.mag is not None:
+        parts.append((flight.mag.t, EVENT_MAG, flight.mag.mag_b))
+    if "gnss" in use and flight.gnss is not None:
+        parts.append((flight.gnss.t, EVENT_GNSS, flight.gnss.v_n))
+    if "air" in use and flight.air is not None:
+        a = flight.air
+        n = len(a.t)
+        aoa = a.aoa if a.aoa is not None else np.full(n, np.nan)
+        beta = a.sideslip if a.sideslip is not None else np.full(n, np.nan)
+        parts.append((a.t, EVENT_AIR, np.column_stack([a.tas, aoa, beta])))
+    t = np.concatenate([p[0] for p in parts])
+    kinds = np.concatenate([np.full(len(p[0]), p[1], dtype=np.int64) for p in parts])
+    vals = np.full((len(t), 6), np.nan)
+    row = 0
+    for p in parts:
+        vals[row : row + len(p[0]), : p[2].shape[1]] = p[2]
+        row += len(p[0])
+    order = np.lexsort((kinds, t))
+    return t[order], kinds[order], vals[order]
+
+
+class Estimator(ABC):
+    """An attitude estimator. Subclasses set ``name``, ``requires`` (streams without
+    which it cannot run), ``uses`` (streams it fuses when present) and implement
+    :meth:`streamer`."""
+
+    name: ClassVar[str]
+    requires: ClassVar[frozenset[str]] = frozenset({"imu"})
+    uses: ClassVar[frozenset[str]] = frozenset({"imu"})
+
+    def check(self, flight: Flight) -> None:
+        """Raise MissingSensorError naming the filter and the first missing sensor."""
+        for sensor in ("imu", "mag", "gnss", "air"):
+            if sensor in self.requires and getattr(flight, sensor) is None:
+                raise MissingSensorError(self.name, sensor)
+
+    def params_text(self) -> str:
+        """The parameters as text (stored with the Estimate)."""
+        return repr(getattr(self, "params", ""))
+
+    @abstractmethod
+    def streamer(
+        self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
+    ) -> Streamer:
+        """A fresh streaming instance. ``has``: the streams that will be fed (lets the filter
+        wait for a magnetometer sample before initialising heading)."""
+
+    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+        """Estimate the whole flight (replays it through :meth:`streamer`)."""
+        self.check(flight)
+        has = (
+            frozenset(s for s in ("imu", "mag", "gnss", "air") if getattr(flight, s) is not None) & self.uses
+        )
+        t_ev, kinds, vals = merge_events(flight, has)
+        s = self.streamer(flight.site, initial=initial, has=has)
+        return replay(self, s, flight, t_ev, kinds, vals)
+
+
+def replay(
+    est: Estimator, s: Streamer, flight: Flight, t_ev: F64, kinds: NDArray[np.int64], vals: F64
+) -> Estimate:
+    """Feed events to a streamer and record its state at every IMU sample."""
+    n = len(flight.imu.t)
+    q = np.empty((n, 4))
+    rows: dict[str, list[F64]] = {"bg": [], "v": [], "wind": [], "cov": []}
+    k = -1
+    labels: tuple[str, ...] = ()
+    first = True
+
+    def record() -> None:
+        nonlocal labels, first
+        st = s.state
+        q[k] = st.q_nb
+        if first:
+            labels = st.state_labels
+            first = False
+        for key, v in (("bg", st.gyro_bias_b), ("v", st.v_n), ("wind", st.wind_n), ("cov", st.cov)):
+            if v is not None:
+                rows[key].append(v)
+
+    for i in range(len(t_ev)):
+        if kinds[i] == EVENT_IMU:
+            if k >= 0:
+                record()
+            k += 1
+        s.push(int(kinds[i]), float(t_ev[i]), vals[i])
+    record()
+
+    def stack(key: str) -> F64 | None:
+        return np.asarray(rows[key]) if len(rows[key]) == n else None
+
+    return Estimate(
+        filter=est.name,
+        t=flight.imu.t.copy(),
+        q_nb=q,
+        gyro_bias_b=stack("bg"),
+        v_n=stack("v"),
+        wind_n=stack("wind"),
+        cov=stack("cov"),
+        state_labels=labels if stack("cov") is not None else (),
+        innovations=s.innovations(),
+        skipped=dict(s.skipped),
+        params=est.params_text(),
+    )

@@ -1,0 +1,220 @@
+"""Tuning of the error-state filters: one frozen record, validated once, loadable from TOML
+with our names or PX4 / ArduPilot parameter names.
+
+Units are SI. Noise *densities* (per sqrt(Hz)) drive the process; measurement noises are
+standard deviations per sample. Defaults are for a MEMS IMU in the field (a little more
+pessimistic than a datasheet, as vibration and temperature demand); simulations that want
+the filter to match the sensor model pass :func:`matched_to` a sensor suite.
+
+TOML layout (any of the tables may be left out)::
+
+    [windahrs]          # our field names, e.g. gyro_noise = 1.5e-4
+    mag_mode = "3d"
+    [px4]               # PX4 EKF2 names, converted as documented in PX4_MAP
+    EKF2_GYR_NOISE = 0.015
+    [ardupilot]         # ArduPilot EKF3 names, see ARDUPILOT_MAP
+    EK3_EAS_M_NSE = 1.4
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from windahrs.conventions import DEG, G0
+
+__all__ = ["ARDUPILOT_MAP", "PX4_MAP", "EskfParams", "load_params", "matched_to"]
+
+#: PX4 and ArduPilot filters use per-step noise at their prediction period; densities
+#: are that times sqrt(period). PX4 EKF2 predicts every 10 ms (EKF2_PREDICT_US default).
+_PX4_DT = 0.01
+_AP_DT = 0.01
+
+
+@dataclass(frozen=True)
+class EskfParams:
+    """Parameters of [mekf], [mekf-air], [ins-wind] and [ekf7].
+
+    Process (continuous densities): gyro_noise rad/s/sqrt(Hz); gyro_bias_noise
+    rad/s^2/sqrt(Hz); accel_noise m/s^2/sqrt(Hz) (INS input); accel_bias_noise
+    m/s^3/sqrt(Hz) (0: no accelerometer-bias states in [ins-wind]); wind_noise,
+    wind_noise_vertical m/s^2/sqrt(Hz) (high enough to follow turbulence: an airframe
+    in gusts sees the wind change by about sigma * sqrt(2 V / L) per sqrt(s)).
+
+    Accelerometer as a gravity measurement ([mekf], [mekf-air], [ekf7]): accel_sigma m/s^2
+    per axis (noise plus unmodelled acceleration); fused only when ``| |f| - g | <
+    accel_norm_gate * g``; accel_compensation: "none", "gnss" (GNSS velocity differences)
+    or "airspeed" (``w x V_air`` from pitot and vanes, SPEC 3.2.2).
+
+    Magnetometer: mag_mode "3d", "heading" (yaw only) or "off"; mag_sigma tesla per axis.
+    GNSS velocity: gnss_sigma m/s per axis. Air data: air_mode "auto" (the vector when the
+    flight has vanes, else airspeed and synthetic sideslip), "vector", "airspeed" or "off";
+    tas_sigma m/s, vane_sigma rad, sideslip_sigma rad (synthetic zero sideslip;
+    synthetic_sideslip switches it).
+
+    Gates: a measurement is rejected when a component's innovation exceeds ``gate`` of its
+    standard deviation (PX4's test ratio), per sensor.
+
+    Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
+    init_wind m/s, init_accel_bias m/s^2.
+    """
+
+    gyro_noise: float = 0.01 * DEG
+    gyro_bias_noise: float = 2e-5
+    accel_noise: float = 2e-3 * G0
+    accel_bias_noise: float = 1e-4
+    wind_noise: float = 0.5
+    wind_noise_vertical: float = 0.3
+    accel_sigma: float = 0.5
+    accel_norm_gate: float = 0.15
+    accel_compensation: Literal["none", "gnss", "airspeed"] = "none"
+    mag_mode: Literal["3d", "heading", "off"] = "3d"
+    mag_sigma: float = 1.5e-6
+    gnss_sigma: float = 0.2
+    air_mode: Literal["auto", "vector", "airspeed", "off"] = "auto"
+    tas_sigma: float = 0.5
+    vane_sigma: float = 1.0 * DEG
+    sideslip_sigma: float = 0.3
+    synthetic_sideslip: bool = True
+    gate_accel: float = 5.0
+    gate_mag: float = 5.0
+    gate_gnss: float = 5.0
+    gate_air: float = 5.0
+    init_att: float = 10.0 * DEG
+    init_bias: float = 0.5 * DEG
+    init_v: float = 1.0
+    init_wind: float = 5.0
+    init_accel_bias: float = 0.05
+
+    def __post_init__(self) -> None:
+        choices = {
+            "accel_compensation": ("none", "gnss", "airspeed"),
+            "mag_mode": ("3d", "heading", "off"),
+            "air_mode": ("auto", "vector", "airspeed", "off"),
+        }
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name in choices:
+                if v not in choices[f.name]:
+                    raise ValueError(f"{f.name}: expected one of {choices[f.name]}, found {v!r}")
+            elif isinstance(v, bool):
+                continue
+            elif not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"{f.name}: expected a finite number >= 0, found {v!r}")
+        for name in ("gyro_noise", "mag_sigma", "gnss_sigma", "tas_sigma", "vane_sigma", "accel_sigma"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
+        for name in ("init_att", "init_bias", "init_v", "init_wind", "init_accel_bias"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
+
+    def replace(self, **changes: Any) -> EskfParams:
+        return dataclasses.replace(self, **changes)
+
+
+def _dens(dt: float) -> Callable[[float], float]:
+    return lambda v: v * math.sqrt(dt)
+
+
+#: PX4 EKF2 parameter -> (our field, conversion).
+PX4_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
+    "EKF2_GYR_NOISE": ("gyro_noise", _dens(_PX4_DT)),
+    "EKF2_GYR_B_NOISE": ("gyro_bias_noise", _dens(_PX4_DT)),
+    "EKF2_ACC_NOISE": ("accel_noise", _dens(_PX4_DT)),
+    "EKF2_ACC_B_NOISE": ("accel_bias_noise", _dens(_PX4_DT)),
+    "EKF2_WIND_NSD": ("wind_noise", float),
+    "EKF2_MAG_NOISE": ("mag_sigma", lambda v: v * 1e-4),  # gauss -> tesla
+    "EKF2_MAG_GATE": ("gate_mag", float),
+    "EKF2_GPS_V_NOISE": ("gnss_sigma", float),
+    "EKF2_GPS_V_GATE": ("gate_gnss", float),
+    "EKF2_EAS_NOISE": ("tas_sigma", float),
+    "EKF2_TAS_GATE": ("gate_air", float),
+    "EKF2_BETA_NOISE": ("sideslip_sigma", float),
+    "EKF2_GRAV_NOISE": ("accel_sigma", lambda v: v * G0),  # in g
+}
+
+#: ArduPilot EKF3 parameter -> (our field, conversion). Gates are in percent of sigma.
+ARDUPILOT_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
+    "EK3_GYRO_P_NSE": ("gyro_noise", _dens(_AP_DT)),
+    "EK3_GBIAS_P_NSE": ("gyro_bias_noise", _dens(_AP_DT)),
+    "EK3_ACC_P_NSE": ("accel_noise", _dens(_AP_DT)),
+    "EK3_ABIAS_P_NSE": ("accel_bias_noise", _dens(_AP_DT)),
+    "EK3_WIND_P_NSE": ("wind_noise", float),
+    "EK3_MAG_M_NSE": ("mag_sigma", lambda v: v * 1e-4),
+    "EK3_MAG_I_GATE": ("gate_mag", lambda v: v / 100.0),
+    "EK3_VELNE_M_NSE": ("gnss_sigma", float),
+    "EK3_VEL_I_GATE": ("gate_gnss", lambda v: v / 100.0),
+    "EK3_EAS_M_NSE": ("tas_sigma", float),
+    "EK3_EAS_I_GATE": ("gate_air", lambda v: v / 100.0),
+}
+
+
+def from_mapping(base: EskfParams, data: Mapping[str, Any], where: str = "params") -> EskfParams:
+    """Apply a ``{table: {key: value}}`` mapping (the TOML layout) to ``base``."""
+    fields = {f.name for f in dataclasses.fields(EskfParams)}
+    changes: dict[str, Any] = {}
+    for table, entries in data.items():
+        if table not in ("windahrs", "px4", "ardupilot"):
+            raise ValueError(f"{where}: expected tables [windahrs], [px4] or [ardupilot], found [{table}]")
+        if not isinstance(entries, Mapping):
+            raise ValueError(f"{where}: [{table}] must be a table, found {type(entries).__name__}")
+        for key, value in entries.items():
+            if table == "windahrs":
+                if key not in fields:
+                    raise ValueError(
+                        f"{where}: unknown parameter {key!r}; known: {', '.join(sorted(fields))}"
+                    )
+                changes[key] = value
+            else:
+                mapping = PX4_MAP if table == "px4" else ARDUPILOT_MAP
+                if key not in mapping:
+                    raise ValueError(
+                        f"{where}: [{table}] {key!r} has no windahrs equivalent; mapped: {', '.join(mapping)}"
+                    )
+                name, conv = mapping[key]
+                if not isinstance(value, int | float):
+                    raise ValueError(f"{where}: [{table}] {key}: expected a number, found {value!r}")
+                changes[name] = conv(float(value))
+    try:
+        return base.replace(**changes)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+def load_params(path: str | Path, base: EskfParams | None = None) -> EskfParams:
+    """Read parameters from a TOML file (layout in the module docstring)."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{p}: no such parameter file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    return from_mapping(base or EskfParams(), data, where=str(p))
+
+
+def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
+    """Parameters equal to a simulator SensorSuite's noise (for consistency studies)."""
+    b = base or EskfParams()
+    ch: dict[str, Any] = {
+        "gyro_noise": max(suite.gyro.noise_density, 1e-12),
+        "gyro_bias_noise": suite.gyro.bias_rw,
+        "accel_noise": max(suite.accel.noise_density, 1e-12),
+        "init_bias": max(suite.gyro.bias_init_sigma, 1e-9),
+    }
+    dt = 1.0 / suite.imu_rate
+    ch["accel_sigma"] = max(suite.accel.noise_density / math.sqrt(dt), 1e-9)
+    if suite.mag is not None:
+        ch["mag_sigma"] = max(math.hypot(suite.mag.noise, suite.mag.hard_iron), 1e-12)
+    if suite.gnss is not None:
+        ch["gnss_sigma"] = max(suite.gnss.noise, 1e-9)
+    if suite.pitot is not None:
+        ch["tas_sigma"] = max(suite.pitot.noise, 1e-9)
+    if suite.vanes is not None:
+        ch["vane_sigma"] = max(suite.vanes.noise, 1e-9)
+    return b.replace(**ch)

@@ -1,0 +1,68 @@
+"""The registry: every estimator by name, for the CLI, benchmarks and experiments.
+
+Entries are imported lazily so that an outside library (ahrs, vqf, imufusion) is only
+needed when its adapter is used.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from windahrs.filters.base import Estimator
+
+__all__ = ["REGISTRY", "make_estimator", "names"]
+
+#: name -> (module, class, one-line description)
+REGISTRY: dict[str, tuple[str, str, str]] = {
+    "paper": ("windahrs.filters.paper", "PaperEKF", "the paper's EKF, faithful, with air-flow direction"),
+    "paper-nowind": ("windahrs.filters.paper", "PaperEKFNoWind", "the paper's EKF without the air data"),
+    "ekf": ("windahrs.filters.paper", "TraditionalEKF", "traditional accelerometer+magnetometer EKF"),
+    "ukf": ("windahrs.filters.paper", "AdditiveUKF", "additive-quaternion UKF"),
+    "mekf": ("windahrs.filters.eskf", "Mekf", "error-state EKF, attitude + gyro bias"),
+    "mekf-air": ("windahrs.filters.eskf", "MekfAir", "error-state EKF with wind states and air data"),
+    "ins-wind": ("windahrs.filters.eskf", "InsWind", "error-state INS with wind states (recommended)"),
+    "ahrs-ekf": ("windahrs.baselines", "AhrsEkf", "ahrs package EKF"),
+    "madgwick": ("windahrs.baselines", "Madgwick", "ahrs package Madgwick"),
+    "mahony": ("windahrs.baselines", "Mahony", "ahrs package Mahony"),
+    "vqf": ("windahrs.baselines", "Vqf", "vqf package VQF"),
+    "imufusion": ("windahrs.baselines", "ImuFusion", "imufusion (x-io Fusion) AHRS"),
+}
+
+
+def names() -> list[str]:
+    """Registered estimator names whose implementation is importable."""
+    out = []
+    for name, (module, cls, _) in REGISTRY.items():
+        try:
+            getattr(importlib.import_module(module), cls)
+        except (ImportError, AttributeError):
+            continue
+        out.append(name)
+    return out
+
+
+def make_estimator(name: str, params_file: str | Path | None = None) -> Estimator:
+    """Build an estimator by name, with parameters from a TOML file when given.
+
+    Unknown names raise ValueError listing the known ones.
+    """
+    if name not in REGISTRY:
+        raise ValueError(f"filter: unknown {name!r}; known filters: {', '.join(names())}")
+    module, cls_name, _ = REGISTRY[name]
+    try:
+        cls = getattr(importlib.import_module(module), cls_name)
+    except ImportError as exc:
+        raise ValueError(
+            f"filter {name!r} needs a package that is not installed ({exc.name}): "
+            "pip install 'windahrs[baselines]'"
+        ) from None
+    if params_file is None:
+        return cls()
+    load = getattr(cls, "load_params", None)
+    if load is None:
+        from windahrs.filters.params import load_params
+
+        base = getattr(cls, "default_params", None)
+        return cls(load_params(params_file, base))
+    return cls(load(params_file))

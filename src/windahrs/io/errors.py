@@ -1,0 +1,190 @@
+"""The readers' error, and the shared rules for what is an error and what is dropped.
+
+Every reader in :mod:`windahrs.io` raises :class:`LogFormatError` for a file it cannot
+turn into a :class:`~windahrs.flight.Flight` (unknown format, truncated or corrupt file,
+missing topic, bad manifest entry); malformed *values* that reach the Flight raise
+:class:`~windahrs.flight.FlightError` with the file prefixed to the field. Both name
+the file.
+
+The helpers below hold the one policy every reader applies at the edge, so that nothing
+is dropped silently:
+
+* time stamps out of order (appended data, multiplexed recorders) are sorted, and
+  repeated stamps keep the first sample; both are counted in ``meta``;
+* non-finite sensor values (inf, NaN) become NaN rows, the Flight's "missing sample";
+* reference quaternions whose norm is not 1 (an estimator not yet initialised logs
+  zeros) become NaN rows, i.e. gaps that are not scored, and are counted;
+* what a third-party parser prints about corrupt bytes is captured and counted
+  (``meta["<format>.parser_messages"]``), not shown.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
+from typing import Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from windahrs.flight import FlightError
+
+__all__ = [
+    "LogFormatError",
+    "ParserOutput",
+    "captured_output",
+    "clean_series",
+    "finite_rows",
+    "flight_errors_name",
+    "guard",
+    "invalid_quat_rows",
+    "param_float",
+]
+
+F64 = NDArray[np.float64]
+T = TypeVar("T")
+
+#: Quaternions whose norm is off by more than this are not attitudes (e.g. all zeros).
+QUAT_NORM_TOL = 1e-3
+
+
+class LogFormatError(ValueError):
+    """A log cannot be read as a Flight. The message names the file and what is wrong.
+
+    ``path`` is the offending file (or directory), ``problem`` the reason.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], problem: str) -> None:
+        self.path = os.fspath(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+def clean_series(
+    t: NDArray[Any], *values: NDArray[Any]
+) -> tuple[NDArray[Any], list[NDArray[Any]], int, int]:
+    """Sort a time series and drop repeated time stamps, keeping the first sample.
+
+    t: (N,) time stamps in any unit (integers keep their precision). values: arrays whose
+    first axis is N. Returns ``(t, values, n_reordered, n_duplicates)``: the cleaned
+    series, how many samples were out of order (0 when already sorted) and how many
+    repeated stamps were dropped. The sort is stable, so "first" means first in the file.
+    """
+    t = np.asarray(t)
+    vals = [np.asarray(v) for v in values]
+    n_reordered = 0
+    if t.size > 1 and (np.diff(t) < 0).any():
+        order = np.argsort(t, kind="stable")
+        n_reordered = int(np.count_nonzero(order != np.arange(t.size)))
+        t = t[order]
+        vals = [v[order] for v in vals]
+    keep = np.ones(t.size, dtype=bool)
+    if t.size > 1:
+        keep[1:] = np.diff(t) != 0
+    n_dup = int(t.size - np.count_nonzero(keep))
+    if n_dup:
+        t = t[keep]
+        vals = [v[keep] for v in vals]
+    return t, vals, n_reordered, n_dup
+
+
+def finite_rows(a: NDArray[Any]) -> F64:
+    """Float copy of ``a`` with every row holding a non-finite value set to NaN (missing)."""
+    out = np.array(a, dtype=np.float64)
+    bad = ~np.isfinite(out).all(axis=1) if out.ndim == 2 else ~np.isfinite(out)
+    out[bad] = np.nan
+    return out
+
+
+def invalid_quat_rows(q: NDArray[Any]) -> tuple[F64, int]:
+    """Quaternions (N, 4) with non-unit or non-finite rows set to NaN; and their count.
+
+    A flight stack logs zeros (or garbage) before its estimator is initialised; those rows
+    are gaps of the reference, not attitudes. Finite rows of norm 1 within
+    ``QUAT_NORM_TOL`` are kept as they are.
+    """
+    out = np.array(q, dtype=np.float64)
+    norm = np.linalg.norm(out, axis=1)
+    bad = ~np.isfinite(out).all(axis=1) | ~(np.abs(norm - 1.0) <= QUAT_NORM_TOL)
+    out[bad] = np.nan
+    return out, int(np.count_nonzero(bad & np.isfinite(q).all(axis=1)))
+
+
+@contextmanager
+def flight_errors_name(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Re-raise a FlightError raised inside the block with the file prefixed to the field."""
+    try:
+        yield
+    except FlightError as exc:
+        raise FlightError(f"{os.fspath(path)}:{exc.field}", exc.expected, exc.found) from None
+
+
+def guard(path: str | os.PathLike[str], what: str, fn: Callable[[], T]) -> T:
+    """Call ``fn``; any exception of a third-party parser becomes a LogFormatError.
+
+    A parser (pyulog, pymavlink, h5py) fails on corrupt input with whatever it meets
+    first (struct.error, IndexError, KeyError, ...); the caller should see which file and
+    that it is unreadable, not the parser's internals.
+    """
+    try:
+        return fn()
+    except (LogFormatError, FlightError):
+        raise
+    except MemoryError:
+        raise
+    except Exception as exc:
+        raise LogFormatError(path, f"{what}: {type(exc).__name__}: {exc}") from None
+
+
+def param_float(value: Any) -> float:
+    """A logged parameter as a float: single-precision values keep their short decimal form.
+
+    Autopilots store parameters as float32; widening 0.2f to double prints
+    0.20000000298023224, which is not what the user set.
+    """
+    v = float(value)
+    if isinstance(value, int | np.integer):
+        return v
+    return float(str(np.float32(v))) if np.isfinite(v) else v
+
+
+class ParserOutput:
+    """What a parser printed inside :func:`captured_output`; ``lines`` is filled on exit."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+
+@contextmanager
+def captured_output() -> Iterator[ParserOutput]:
+    """Capture what third-party parsers print, so readers can count it instead.
+
+    pyulog and pymavlink report corrupt bytes with ``print`` (Python level) and, in
+    pymavlink's compiled indexer, ``fprintf(stderr)`` (C level, once per bad byte: millions
+    of lines for a corrupt log). Both go to a buffer here; the reader records the count in
+    ``Flight.meta``. File descriptor 2 is redirected only for the duration of the block.
+    """
+    out = ParserOutput()
+    sink = io.StringIO()
+    with tempfile.TemporaryFile() as tmp:
+        saved: int | None = None
+        try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+            os.dup2(tmp.fileno(), 2)
+        except (OSError, ValueError):  # no real fd 2 (embedded interpreters): Python level only
+            saved = None
+        try:
+            with redirect_stdout(sink), redirect_stderr(sink):
+                yield out
+        finally:
+            if saved is not None:
+                os.dup2(saved, 2)
+                os.close(saved)
+            tmp.seek(0)
+            text = sink.getvalue() + tmp.read().decode("utf-8", "replace")
+            out.lines = [line for line in text.splitlines() if line.strip()]

@@ -1,0 +1,325 @@
+"""PX4 ULog files (``.ulg``) to :class:`~windahrs.flight.Flight`, with pyulog.
+
+Topics read (PX4 uORB names; FRD body and NED already, so only units change):
+
+==============================  ==================================================
+Flight field                    ULog topic (fields)
+==============================  ==================================================
+imu                             ``sensor_combined`` (``gyro_rad``, ``accelerometer_m_s2``)
+mag                             ``vehicle_magnetometer`` (``magnetometer_ga``, gauss);
+                                else ``sensor_combined.magnetometer_ga`` (old layout)
+gnss                            ``vehicle_gps_position`` else ``sensor_gps``
+                                (``vel_n/e/d_m_s``, rows with ``vel_ned_valid`` only)
+air                             ``airspeed_validated`` else ``airspeed``
+                                (``true_airspeed_m_s``); vanes from ``airflow_aoa`` and
+                                ``airflow_slip`` when both are logged
+ref_wind                        ``wind`` else ``wind_estimate`` (``windspeed_north/east``;
+                                PX4's wind state is the velocity of the air, down = 0)
+reference                       ``vehicle_attitude_groundtruth`` (kind "truth", SITL)
+                                else ``vehicle_attitude`` (kind "autopilot")
+meta                            ``param.EKF2_*`` initial parameters, as floats
+==============================  ==================================================
+
+Time: seconds from the log header's start time (``meta["start_time_us"]``, microseconds
+since boot). A few topics publish samples stamped just before that start, which get small
+negative times. Where a topic logs ``timestamp_sample`` (the sensor time of validity) it is
+used instead of the publication ``timestamp``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from windahrs.flight import (
+    AirDataStream,
+    Flight,
+    GnssStream,
+    ImuStream,
+    MagStream,
+    Reference,
+    ReferenceKind,
+    WindStream,
+)
+from windahrs.io.errors import (
+    LogFormatError,
+    captured_output,
+    clean_series,
+    finite_rows,
+    flight_errors_name,
+    guard,
+    invalid_quat_rows,
+    param_float,
+)
+
+__all__ = ["ULOG_TOPICS", "read_ulog"]
+
+#: Every topic the reader may use; pyulog parses only these (faster on big logs).
+ULOG_TOPICS: tuple[str, ...] = (
+    "sensor_combined",
+    "vehicle_magnetometer",
+    "vehicle_gps_position",
+    "sensor_gps",
+    "airspeed_validated",
+    "airspeed",
+    "airflow_aoa",
+    "airflow_slip",
+    "wind",
+    "wind_estimate",
+    "vehicle_attitude",
+    "vehicle_attitude_groundtruth",
+)
+
+#: ``*_timestamp_relative`` value meaning "no sample" (PX4 RELATIVE_TIMESTAMP_INVALID).
+_REL_INVALID = 0x7FFFFFFF
+_GAUSS = 1e-4  # tesla per gauss
+_US = 1e-6
+
+Data = dict[str, NDArray[Any]]
+
+
+def read_ulog(
+    path: str | os.PathLike[str], *, multi_id: int = 0, air_topic: str | None = None
+) -> Flight:
+    """Read a PX4 ULog file into a Flight.
+
+    path: the ``.ulg`` file. multi_id: the instance of multi-instance topics to read
+    (a topic without that instance falls back to its lowest one; ``meta`` names the topic
+    and instance used for each stream). air_topic: force ``"airspeed_validated"`` or
+    ``"airspeed"`` (by default the validated one, which PX4 logs at a lower rate on some
+    versions).
+
+    Raises LogFormatError (file missing, not a ULog, truncated before the IMU data, no
+    ``sensor_combined``) and FlightError (values failing validation; field prefixed by
+    the file).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise LogFormatError(p, "no such file")
+    from pyulog import ULog  # optional dependency (extra "logs")
+
+    with captured_output() as chatter:
+        ulog = guard(
+            p,
+            "not a readable ULog file (truncated or corrupt?)",
+            lambda: ULog(str(p), list(ULOG_TOPICS)),
+        )
+    topics = _Topics(ulog, multi_id)
+    t0 = int(ulog.start_timestamp)
+    meta: dict[str, Any] = {
+        "source": p.name,
+        "format": "ulog",
+        "start_time_us": t0,
+        "ulog.dropouts": len(ulog.dropouts),
+        "ulog.dropout_s": float(sum(d.duration for d in ulog.dropouts)) * 1e-3,
+        "ulog.file_corruption": bool(ulog.file_corruption),
+        "ulog.parser_messages": len(chatter.lines),
+        "ulog.data_appended": bool(ulog.has_data_appended),
+    }
+    for key in ("sys_name", "ver_hw", "ver_sw"):
+        if key in ulog.msg_info_dict:
+            meta[f"ulog.{key}"] = str(ulog.msg_info_dict[key])
+    for name, value in sorted(ulog.initial_parameters.items()):
+        if name.startswith("EKF2_"):
+            meta[f"param.{name}"] = param_float(value)
+
+    sc = topics.get("sensor_combined")
+    if sc is None or len(sc["timestamp"]) == 0:
+        hint = " (the file holds no data messages: truncated?)" if not ulog.data_list else ""
+        raise LogFormatError(p, f"no 'sensor_combined' topic (the IMU data a Flight needs){hint}")
+    meta["imu.topic"] = topics.used["sensor_combined"]
+
+    with flight_errors_name(p):
+        imu = _imu(sc, t0, meta)
+        flight = Flight(
+            imu=imu,
+            mag=_mag(topics, sc, t0, meta),
+            gnss=_gnss(topics, t0, meta),
+            air=_air(topics, t0, meta, air_topic),
+            reference=_reference(topics, t0, meta),
+            ref_wind=_wind(topics, t0, meta),
+            meta=meta,
+        )
+    return flight
+
+
+class _Topics:
+    """Topic lookup by name with the instance rule of :func:`read_ulog`."""
+
+    def __init__(self, ulog: Any, multi_id: int) -> None:
+        self._by_name: dict[str, dict[int, Data]] = {}
+        for d in ulog.data_list:
+            self._by_name.setdefault(d.name, {})[int(d.multi_id)] = d.data
+        self._multi_id = multi_id
+        self.used: dict[str, str] = {}
+
+    def get(self, name: str) -> Data | None:
+        inst = self._by_name.get(name)
+        if not inst:
+            return None
+        k = self._multi_id if self._multi_id in inst else min(inst)
+        self.used[name] = f"{name}[{k}]"
+        return inst[k]
+
+
+def _vec(d: Data, base: str, n: int = 3) -> NDArray[np.float64]:
+    return np.column_stack([np.asarray(d[f"{base}[{i}]"], dtype=np.float64) for i in range(n)])
+
+
+def _stamps(d: Data) -> NDArray[np.int64]:
+    """Per-row time of validity, us: ``timestamp_sample`` where logged (non-zero)."""
+    t = np.asarray(d["timestamp"]).astype(np.int64)
+    if "timestamp_sample" in d:
+        ts = np.asarray(d["timestamp_sample"]).astype(np.int64)
+        t = np.where(ts > 0, ts, t)
+    return t
+
+
+def _clean(
+    name: str, t_us: NDArray[np.int64], t0: int, meta: dict[str, Any], *values: NDArray[Any]
+) -> tuple[NDArray[np.float64], list[NDArray[Any]]]:
+    t, vals, n_reordered, n_dup = clean_series(t_us, *values)
+    if n_reordered:
+        meta[f"{name}.reordered"] = n_reordered
+    if n_dup:
+        meta[f"{name}.dropped_duplicates"] = n_dup
+    return (t - t0).astype(np.float64) * _US, vals
+
+
+def _imu(sc: Data, t0: int, meta: dict[str, Any]) -> ImuStream:
+    w = finite_rows(_vec(sc, "gyro_rad"))
+    f = finite_rows(_vec(sc, "accelerometer_m_s2"))
+    if "accelerometer_timestamp_relative" in sc:
+        # One time vector for gyro and accel: the accelerometer's own offset (0 on the
+        # logs seen) is recorded so a user can judge the approximation.
+        rel = np.asarray(sc["accelerometer_timestamp_relative"]).astype(np.int64)
+        rel = rel[rel != _REL_INVALID]
+        meta["imu.accel_offset_max_s"] = float(np.abs(rel).max() * _US) if rel.size else 0.0
+    t, (w, f) = _clean("imu", _stamps(sc), t0, meta, w, f)
+    return ImuStream(t=t, w_b=w, f_b=f)
+
+
+def _mag(topics: _Topics, sc: Data, t0: int, meta: dict[str, Any]) -> MagStream | None:
+    vm = topics.get("vehicle_magnetometer")
+    if vm is not None and len(vm["timestamp"]):
+        meta["mag.topic"] = topics.used["vehicle_magnetometer"]
+        m = finite_rows(_vec(vm, "magnetometer_ga")) * _GAUSS
+        t, (m,) = _clean("mag", _stamps(vm), t0, meta, m)
+        return MagStream(t=t, mag_b=m)
+    if "magnetometer_ga[0]" not in sc:
+        return None
+    # Old layout: the magnetometer rides in sensor_combined, held between its own samples;
+    # its sample time is timestamp + magnetometer_timestamp_relative, and a repeated time
+    # is the same sample published again (expected, so counted apart from duplicates).
+    t_us = np.asarray(sc["timestamp"]).astype(np.int64)
+    m = finite_rows(_vec(sc, "magnetometer_ga")) * _GAUSS
+    if "magnetometer_timestamp_relative" in sc:
+        rel = np.asarray(sc["magnetometer_timestamp_relative"]).astype(np.int64)
+        ok = rel != _REL_INVALID
+        t_us, m = t_us[ok] + rel[ok], m[ok]
+    t_us, (m,), n_reordered, n_held = clean_series(t_us, m)
+    meta["mag.topic"] = "sensor_combined.magnetometer_ga"
+    meta["mag.held_repeats"] = n_held
+    if n_reordered:
+        meta["mag.reordered"] = n_reordered
+    if t_us.size == 0:
+        return None
+    return MagStream(t=(t_us - t0).astype(np.float64) * _US, mag_b=m)
+
+
+def _gnss(topics: _Topics, t0: int, meta: dict[str, Any]) -> GnssStream | None:
+    for name in ("vehicle_gps_position", "sensor_gps"):
+        d = topics.get(name)
+        if d is None or len(d["timestamp"]) == 0:
+            continue
+        v = finite_rows(np.column_stack([d[f"vel_{c}_m_s"] for c in "ned"]))
+        t_us = _stamps(d)
+        if "vel_ned_valid" in d:
+            ok = np.asarray(d["vel_ned_valid"]) != 0
+            meta["gnss.dropped_invalid"] = int(np.count_nonzero(~ok))
+            t_us, v = t_us[ok], v[ok]
+        if t_us.size == 0:
+            continue
+        meta["gnss.topic"] = topics.used[name]
+        t, (v,) = _clean("gnss", t_us, t0, meta, v)
+        return GnssStream(t=t, v_n=v)
+    return None
+
+
+def _air(
+    topics: _Topics, t0: int, meta: dict[str, Any], air_topic: str | None
+) -> AirDataStream | None:
+    names = (air_topic,) if air_topic else ("airspeed_validated", "airspeed")
+    for name in names:
+        d = topics.get(name)
+        if d is None or len(d["timestamp"]) == 0 or "true_airspeed_m_s" not in d:
+            continue
+        meta["air.topic"] = topics.used[name]
+        tas = np.asarray(d["true_airspeed_m_s"], dtype=np.float64)
+        tas = np.where(np.isfinite(tas), tas, np.nan)
+        t, (tas,) = _clean("air", _stamps(d), t0, meta, tas)
+        aoa, slip = _vanes(topics, t, t0, meta)
+        return AirDataStream(t=t, tas=tas, aoa=aoa, sideslip=slip)
+    return None
+
+
+def _vanes(
+    topics: _Topics, t: NDArray[np.float64], t0: int, meta: dict[str, Any]
+) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """Angle of attack and sideslip (rad) on the airspeed's time grid, or (None, None).
+
+    PX4 logs the vanes as their own topics; AirDataStream holds one time vector, so they
+    are interpolated linearly onto the airspeed samples (NaN outside the vanes' span and
+    where a vane reports itself invalid).
+    """
+    d_aoa, d_slip = topics.get("airflow_aoa"), topics.get("airflow_slip")
+    if d_aoa is None or d_slip is None:
+        return None, None
+    out = []
+    for d, key in ((d_aoa, "aoa_rad"), (d_slip, "slip_rad")):
+        if key not in d or len(d["timestamp"]) == 0:
+            return None, None
+        a = np.asarray(d[key], dtype=np.float64)
+        if "valid" in d:
+            a = np.where(np.asarray(d["valid"]) != 0, a, np.nan)
+        tv, (a,), _, _ = clean_series(_stamps(d), a)
+        out.append(np.interp(t, (tv - t0) * _US, a, left=np.nan, right=np.nan))
+    meta["air.vanes"] = "airflow_aoa/airflow_slip interpolated onto airspeed times"
+    return out[0], out[1]
+
+
+def _wind(topics: _Topics, t0: int, meta: dict[str, Any]) -> WindStream | None:
+    for name in ("wind", "wind_estimate"):
+        d = topics.get(name)
+        if d is None or len(d["timestamp"]) == 0:
+            continue
+        n = np.asarray(d["windspeed_north"], dtype=np.float64)
+        w = finite_rows(np.column_stack([n, d["windspeed_east"], np.zeros_like(n)]))
+        meta["ref_wind.topic"] = topics.used[name]
+        t, (w,) = _clean("ref_wind", _stamps(d), t0, meta, w)
+        return WindStream(t=t, wind_n=w)
+    return None
+
+
+_REFERENCE_TOPICS: tuple[tuple[str, ReferenceKind], ...] = (
+    ("vehicle_attitude_groundtruth", "truth"),
+    ("vehicle_attitude", "autopilot"),
+)
+
+
+def _reference(topics: _Topics, t0: int, meta: dict[str, Any]) -> Reference | None:
+    for name, kind in _REFERENCE_TOPICS:
+        d = topics.get(name)
+        if d is None or len(d["timestamp"]) == 0:
+            continue
+        q, n_bad = invalid_quat_rows(_vec(d, "q", 4))
+        meta["reference.topic"] = topics.used[name]
+        if n_bad:
+            meta["reference.invalid_quaternions"] = n_bad
+        t, (q,) = _clean("reference", _stamps(d), t0, meta, q)
+        return Reference(t=t, q_nb=q, kind=kind)
+    return None

@@ -1,0 +1,174 @@
+"""Scoring an Estimate against truth or a reference: attitude errors, RMSE windows,
+convergence, NEES/NIS with chi-square bands (SPEC 6.3).
+
+Errors are estimate minus reference. Per-axis errors are differences of ZYX Euler angles
+(wrapped to +-180 deg); the total error is the rotation angle between the two attitudes;
+the tilt (inclination) error is the angle between their "down" axes, which does not
+depend on heading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from windahrs.estimate import Estimate
+from windahrs.flight import Flight
+from windahrs.rotation import euler_from_quat, quat_conj, quat_exp, quat_log, quat_mul, quat_rotate_inv
+
+__all__ = [
+    "AttitudeErrors",
+    "Score",
+    "attitude_errors",
+    "chi2_band",
+    "convergence_index",
+    "nees_attitude",
+    "reference_of",
+    "rmse",
+    "score",
+]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class AttitudeErrors:
+    """Errors on the reference's valid samples. t (M,) s; euler (M, 3) rad (roll, pitch,
+    yaw); total (M,) rad; tilt (M,) rad; index (M,) the estimate's rows used."""
+
+    t: F64
+    euler: F64
+    total: F64
+    tilt: F64
+    index: NDArray[np.int64]
+
+
+def reference_of(flight: Flight) -> tuple[F64, F64, str, bool]:
+    """(t, q_nb, label, heading_free) of what an estimate is scored against: the
+    simulation truth, else the recording's reference (mocap or the autopilot's)."""
+    if flight.truth is not None:
+        return flight.truth.t, flight.truth.q_nb, "truth", False
+    if flight.reference is not None:
+        r = flight.reference
+        q = r.q_nb.copy()
+        if r.mask is not None:
+            q[~r.mask] = np.nan
+        return r.t, q, r.kind, r.heading_free
+    raise ValueError("flight: expected truth or a reference attitude to score against, found neither")
+
+
+def _interp_ref(t_ref: F64, q_ref: F64, t: F64) -> tuple[F64, NDArray[np.bool_]]:
+    """Reference attitude at times t (nearest sample within half a reference period;
+    gaps (NaN) and times outside the reference are invalid)."""
+    if len(t_ref) == 1:
+        return np.repeat(q_ref, len(t), axis=0), np.isclose(t, t_ref[0])
+    i = np.clip(np.searchsorted(t_ref, t), 1, len(t_ref) - 1)
+    left = np.where(t - t_ref[i - 1] <= t_ref[i] - t, i - 1, i)
+    dt_ref = float(np.median(np.diff(t_ref)))
+    ok = (np.abs(t_ref[left] - t) <= 0.51 * dt_ref + 1e-9) & np.isfinite(q_ref[left]).all(axis=1)
+    return q_ref[left], ok
+
+
+def heading_offset(q_est: F64, q_ref: F64) -> float:
+    """The constant rotation about the nav vertical that best aligns the reference to the
+    estimate (circular mean of the yaw differences), rad."""
+    d = euler_from_quat(q_est)[:, 2] - euler_from_quat(q_ref)[:, 2]
+    return float(np.arctan2(np.mean(np.sin(d)), np.mean(np.cos(d))))
+
+
+def attitude_errors(est: Estimate, flight: Flight, *, remove_heading: bool | None = None) -> AttitudeErrors:
+    """Errors of ``est`` against the flight's truth or reference. ``remove_heading``:
+    remove a constant heading offset first (default: when the reference is heading-free)."""
+    t_ref, q_ref_all, _, free = reference_of(flight)
+    q_ref, ok = _interp_ref(t_ref, q_ref_all, est.t)
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        raise ValueError("reference: no sample overlaps the estimate in time")
+    qe, qr = est.q_nb[idx], q_ref[idx]
+    if remove_heading if remove_heading is not None else free:
+        psi = heading_offset(qe, qr)
+        qr = quat_mul(quat_exp(np.array([0.0, 0.0, psi])), qr)
+    e = euler_from_quat(qe) - euler_from_quat(qr)
+    e = (e + np.pi) % (2 * np.pi) - np.pi
+    total = np.linalg.norm(quat_log(quat_mul(quat_conj(qr), qe)), axis=1)
+    down = np.array([0.0, 0.0, 1.0])
+    c = np.sum(quat_rotate_inv(qe, down) * quat_rotate_inv(qr, down), axis=1)
+    tilt = np.arccos(np.clip(c, -1.0, 1.0))
+    return AttitudeErrors(t=est.t[idx], euler=e, total=total, tilt=tilt, index=idx)
+
+
+def rmse(x: F64, axis: int = 0) -> F64:
+    """Root mean square along ``axis`` (NaN-aware)."""
+    return np.sqrt(np.nanmean(np.asarray(x) ** 2, axis=axis))
+
+
+def convergence_index(total: F64, threshold: float) -> int:
+    """First sample after which the error stays below ``threshold`` (len if never)."""
+    above = np.flatnonzero(total >= threshold)
+    return 0 if len(above) == 0 else int(above[-1]) + 1
+
+
+@dataclass(frozen=True)
+class Score:
+    """RMSE in degrees: from sample 50 on, and over the second half (steady state)."""
+
+    filter: str
+    reference: str
+    rmse_from50_deg: tuple[float, float, float]
+    rmse_steady_deg: tuple[float, float, float]
+    rmse_tilt_deg: float
+    rmse_total_deg: float
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "filter": self.filter,
+            "reference": self.reference,
+            "rmse_from50_deg": list(self.rmse_from50_deg),
+            "rmse_steady_deg": list(self.rmse_steady_deg),
+            "rmse_tilt_deg": self.rmse_tilt_deg,
+            "rmse_total_deg": self.rmse_total_deg,
+        }
+
+
+def score(est: Estimate, flight: Flight, *, remove_heading: bool | None = None) -> Score:
+    """RMSE per axis from sample 50 and over the second half; tilt and total from 50."""
+    err = attitude_errors(est, flight, remove_heading=remove_heading)
+    d = np.degrees
+    from50 = err.index >= 50
+    steady = err.index >= len(est.t) // 2
+    return Score(
+        filter=est.filter,
+        reference=reference_of(flight)[2],
+        rmse_from50_deg=tuple(float(v) for v in d(rmse(err.euler[from50]))),  # type: ignore[arg-type]
+        rmse_steady_deg=tuple(float(v) for v in d(rmse(err.euler[steady]))),  # type: ignore[arg-type]
+        rmse_tilt_deg=float(d(rmse(err.tilt[from50]))),
+        rmse_total_deg=float(d(rmse(err.total[from50]))),
+    )
+
+
+def nees_attitude(est: Estimate, flight: Flight, *, with_bias: bool = True) -> F64:
+    """NEES (N,) of the attitude error (and gyro bias error when estimated and
+    ``with_bias``) against the truth, with the estimate's tangent-space covariance."""
+    tr = flight.truth
+    if tr is None or est.cov is None:
+        raise ValueError("NEES needs simulation truth and an estimate with covariance")
+    if not np.array_equal(tr.t, est.t):
+        raise ValueError("NEES: truth and estimate must share the IMU time grid")
+    e = quat_log(quat_mul(quat_conj(est.q_nb), tr.q_nb))
+    labels = [lab for lab in est.state_labels if lab.startswith("att_")]
+    if with_bias and est.gyro_bias_b is not None and tr.gyro_bias_b is not None:
+        e = np.hstack([e, tr.gyro_bias_b - est.gyro_bias_b])
+        labels += [lab for lab in est.state_labels if lab.startswith("bg_")]
+    idx = [est.state_labels.index(lab) for lab in labels]
+    P = est.cov[:, idx][:, :, idx]
+    return np.einsum("ni,ni->n", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
+
+
+def chi2_band(dim: int, runs: int, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided band of the N-run average of a chi-square(dim) statistic (SPEC 6.3)."""
+    lo = chi2.ppf((1 - level) / 2, dim * runs) / runs
+    hi = chi2.ppf(1 - (1 - level) / 2, dim * runs) / runs
+    return float(lo), float(hi)
