@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 from windahrs.conventions import P_ENU_NED
 
 __all__ = [
+    "air_direction",
     "dcm_from_quat",
     "euler_from_quat",
     "euler_rate_map",
@@ -252,6 +253,13 @@ def euler_rate_map(roll: ArrayLike, pitch: ArrayLike) -> F64:
         ],
         -2,
     )
+
+
+def air_direction(aoa: ArrayLike, sideslip: ArrayLike) -> F64:
+    """Unit air-relative velocity in FRD body axes (..., 3) from angle of attack and
+    sideslip (rad): ``C_wb [1, 0, 0] = [cos a cos b, sin b, sin a cos b]`` (SPEC 3.4.1)."""
+    a, b = _arr(aoa), _arr(sideslip)
+    return np.stack([np.cos(a) * np.cos(b), np.sin(b), np.sin(a) * np.cos(b)], -1)
 
 
 # --- frame conversions at the I/O edge (SPEC 1.5) ------------------------------------

@@ -28,7 +28,7 @@ from windahrs.filters.params import EskfParams
 from windahrs.flight import Site
 from windahrs.models import observations as obs
 from windahrs.models.error_state import Layout, NominalState, ProcessNoise, predict
-from windahrs.rotation import dcm_from_quat, euler_from_quat, quat_from_euler
+from windahrs.rotation import air_direction, dcm_from_quat, euler_from_quat, quat_from_euler
 
 __all__ = ["EskfStreamer", "InsWind", "Mekf", "MekfAir"]
 
@@ -136,7 +136,11 @@ class EskfStreamer(Streamer):
             )
         self._init_wind_pending = L.has("wind") and (ini is None or ini.wind_n is None)
 
-    # -- generic update ---------------------------------------------------------------
+    # -- generic prediction and update -------------------------------------------------
+    def _predict(self, w_b: F64, f_b: F64, dt: float) -> None:
+        assert self.x is not None
+        self.x, self.P = predict(self.layout, self.x, self.P, w_b, f_b, dt, self.noise, self.g_n)
+
     def _fuse(self, sensor: str, t: float, nu: F64, H: F64, R: F64, gate: float) -> bool:
         assert self.x is not None
         S = H @ self.P @ H.T + R
@@ -165,7 +169,7 @@ class EskfStreamer(Streamer):
         self.t_imu = t
         self.w_last = w_b
         if dt > 0:
-            self.x, self.P = predict(self.layout, self.x, self.P, w_b, f_b, dt, self.noise, self.g_n)
+            self._predict(w_b, f_b, dt)
         if self.kind != "ins-wind":
             self._fuse_accel(t, w_b, f_b)
 
@@ -224,7 +228,7 @@ class EskfStreamer(Streamer):
 
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
         vanes = np.isfinite(aoa) and np.isfinite(sideslip)
-        self.v_air_b = tas * obs.air_direction(aoa, sideslip) if vanes else np.array([tas, 0.0, 0.0])
+        self.v_air_b = tas * air_direction(aoa, sideslip) if vanes else np.array([tas, 0.0, 0.0])
         if self.x is None or self.kind == "mekf" or self.p.air_mode == "off":
             return
         v_in = None
@@ -286,9 +290,13 @@ class EskfStreamer(Streamer):
             gyro_bias_b=self.x.bg.copy(),
             v_n=None if self.x.v_n is None else self.x.v_n.copy(),
             wind_n=None if self.x.wind_n is None else self.x.wind_n.copy(),
-            cov=self.P.copy(),
+            cov=self._tangent_cov(),
             state_labels=self.layout.labels(),
         )
+
+    def _tangent_cov(self) -> F64:
+        """The error-state covariance in the tangent space of the layout."""
+        return self.P.copy()
 
 
 class _EskfEstimator(Estimator):

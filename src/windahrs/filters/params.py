@@ -206,6 +206,8 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
         "gyro_bias_noise": suite.gyro.bias_rw,
         "accel_noise": max(suite.accel.noise_density, 1e-12),
         "init_bias": max(suite.gyro.bias_init_sigma, 1e-9),
+        "accel_bias_noise": max(suite.accel.bias_rw, 1e-9),
+        "init_accel_bias": max(suite.accel.bias_init_sigma, 1e-9),
     }
     dt = 1.0 / suite.imu_rate
     ch["accel_sigma"] = max(suite.accel.noise_density / math.sqrt(dt), 1e-9)

@@ -19,6 +19,8 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "paper-nowind": ("windahrs.filters.paper", "PaperEKFNoWind", "the paper's EKF without the air data"),
     "ekf": ("windahrs.filters.paper", "TraditionalEKF", "traditional accelerometer+magnetometer EKF"),
     "ukf": ("windahrs.filters.paper", "AdditiveUKF", "additive-quaternion UKF"),
+    "ekf7": ("windahrs.filters.ekf7", "Ekf7", "additive quaternion + gyro bias EKF, Q from gyro noise"),
+    "ekf10": ("windahrs.filters.ekf7", "Ekf10", "ekf7 plus wind states fusing air data"),
     "mekf": ("windahrs.filters.eskf", "Mekf", "error-state EKF, attitude + gyro bias"),
     "mekf-air": ("windahrs.filters.eskf", "MekfAir", "error-state EKF with wind states and air data"),
     "ins-wind": ("windahrs.filters.eskf", "InsWind", "error-state INS with wind states (recommended)"),

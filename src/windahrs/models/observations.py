@@ -17,7 +17,6 @@ from windahrs.models.error_state import Layout, NominalState
 from windahrs.rotation import dcm_from_quat, euler_from_quat, skew
 
 __all__ = [
-    "air_direction",
     "air_direction_jacobian",
     "airspeed",
     "air_velocity",
@@ -107,11 +106,6 @@ def sideslip(layout: Layout, x: NominalState, v_n: F64 | None = None) -> tuple[F
     u = y[0] if abs(y[0]) > 1e-3 else np.copysign(1e-3, y[0])
     g = np.array([-y[1] / u**2, 1.0 / u, 0.0])
     return np.array([y[1] / u]), (g @ J)[None, :]
-
-
-def air_direction(aoa: float, beta: float) -> F64:
-    """Unit air-relative velocity in the body from angle of attack and sideslip (rad)."""
-    return np.array([np.cos(aoa) * np.cos(beta), np.sin(beta), np.sin(aoa) * np.cos(beta)])
 
 
 def air_direction_jacobian(tas: float, aoa: float, beta: float) -> F64:

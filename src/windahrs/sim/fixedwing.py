@@ -15,12 +15,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.conventions import DEG, G0
-from windahrs.rotation import dcm_from_quat, quat_from_euler
+from windahrs.rotation import air_direction, dcm_from_quat, quat_from_euler
 from windahrs.sim.atmosphere import WindConfig, wind_n
 from windahrs.sim.gust_response import fly_attitude_held
 from windahrs.sim.sensors import TruthTrajectory
 
-__all__ = ["Airframe", "FixedWingScenario", "Leg", "air_direction_b", "fixedwing_truth"]
+__all__ = ["Airframe", "FixedWingScenario", "Leg", "fixedwing_truth"]
 
 F64 = NDArray[np.float64]
 
@@ -139,11 +139,6 @@ class FixedWingScenario:
         return tuple(self.plan)
 
 
-def air_direction_b(alpha: float, beta: float) -> F64:
-    """Unit air-relative velocity in FRD body axes for angle of attack and sideslip."""
-    return np.array([np.cos(alpha) * np.cos(beta), np.sin(beta), np.sin(alpha) * np.cos(beta)])
-
-
 def _smooth_schedule(t: F64, legs: tuple[Leg, ...], attr: str, transition: float) -> F64:
     """Piecewise-constant leg values joined by smooth (C1) steps of length ``transition``."""
     out = np.zeros_like(t)
@@ -189,7 +184,7 @@ def fixedwing_truth(
     pitch = _pitch_for_climb(alpha0, roll, climb)
     q_nb = quat_from_euler(np.stack([roll, pitch, yaw], axis=1))
 
-    v_air_b = V * air_direction_b(alpha0, 0.0)
+    v_air_b = V * air_direction(alpha0, 0.0)
     C_nb = dcm_from_quat(q_nb)
     v_air_n = C_nb @ v_air_b
     mean = sc.wind.mean_n(np.array([sc.altitude]))[0]

@@ -16,9 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.conventions import DEG
-from windahrs.rotation import dcm_from_quat, quat_from_euler
+from windahrs.rotation import air_direction, dcm_from_quat, quat_from_euler
 from windahrs.sim.atmosphere import WindConfig, wind_n
-from windahrs.sim.fixedwing import air_direction_b
 from windahrs.sim.gust_response import fly_attitude_held
 from windahrs.sim.sensors import TruthTrajectory
 
@@ -61,7 +60,7 @@ class PaperScenario:
         ``|W| = wind_speed`` fixes A_T (SPEC 7.1: 5.98 m/s at 5 m/s). Without wind the
         airflow is 1 m/s along (alpha0, beta0).
         """
-        d = air_direction_b(self.alpha0, self.beta0)
+        d = air_direction(self.alpha0, self.beta0)
         W = self.wind_speed
         if W == 0:
             return 1.0, np.zeros(3)
@@ -76,7 +75,7 @@ def paper_truth(sc: PaperScenario, t: F64, rng: np.random.Generator) -> TruthTra
     yaw = sc.mean_heading() + 0.2 * np.sin(0.3 * t)
     q_nb = quat_from_euler(np.stack([roll, pitch, yaw], axis=1))
     a_t, wind_b = sc.airflow()
-    v_air_b = a_t * air_direction_b(sc.alpha0, sc.beta0)
+    v_air_b = a_t * air_direction(sc.alpha0, sc.beta0)
     mean_n = dcm_from_quat(quat_from_euler([0.0, 0.0, sc.mean_heading()])) @ wind_b
     # The paper's "wind speed" is the mean wind itself (no shear); it also sets W20.
     speed = float(np.linalg.norm(mean_n[:2]))

@@ -1,0 +1,466 @@
+"""The additive-quaternion family: models against their numeric twins, the paper's printed
+innovation, the paper's claim on its own scenario, zero-noise exactness, bad input, and
+streaming equal to batch."""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from windahrs.conventions import DEG, UP_N
+from windahrs.estimate import Estimate
+from windahrs.filters.base import InitialState, MissingSensorError, merge_events
+from windahrs.filters.paper import (
+    AdditiveUKF,
+    AdditiveUKFParams,
+    PaperEKF,
+    PaperEKFNoWind,
+    PaperNoWindParams,
+    PaperParams,
+    TraditionalEKF,
+    TraditionalEKFParams,
+)
+from windahrs.flight import Flight, ImuStream, MagStream, Site
+from windahrs.models.additive import (
+    Omega,
+    Xi,
+    att_cov_from_quat_cov,
+    ekf7_jacobian,
+    ekf7_process_noise,
+    normalization_jacobian,
+    quat_cov_from_att_cov,
+    transition_exact,
+    transition_picard4,
+    vector_obs,
+    vector_obs_jacobian,
+)
+from windahrs.rotation import (
+    euler_from_quat,
+    quat_angle,
+    quat_exp,
+    quat_mul,
+    quat_rotate_inv,
+)
+from windahrs.sim.paper import PaperScenario
+from windahrs.sim.scenario import simulate
+from windahrs.sim.sensors import SensorSuite
+
+RNG_SEED = 20240611
+
+
+def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
+    v = rng.normal(size=n)
+    return v / np.linalg.norm(v)
+
+
+def _fd_jacobian(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    cols = []
+    for i in range(len(x)):
+        e = np.zeros(len(x))
+        e[i] = h
+        cols.append((f(x + e) - f(x - e)) / (2 * h))
+    return np.stack(cols, axis=1)
+
+
+def _rel_err(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+# --- (a) models against their numeric twins -------------------------------------------
+
+
+def test_omega_and_xi_are_the_quaternion_product() -> None:
+    rng = np.random.default_rng(RNG_SEED)
+    for _ in range(5):
+        q, w = rng.normal(size=4), rng.normal(size=3)
+        qw = quat_mul(q, np.concatenate([[0.0], w]))
+        np.testing.assert_allclose(Omega(w) @ q, qw, atol=1e-14)
+        np.testing.assert_allclose(Xi(q) @ w, qw, atol=1e-14)
+        np.testing.assert_allclose(Omega(w), -Omega(w).T)  # norm-preserving
+        u = q / np.linalg.norm(q)
+        np.testing.assert_allclose(Xi(u).T @ Xi(u), np.eye(3), atol=1e-14)
+        np.testing.assert_allclose(Xi(u) @ Xi(u).T, np.eye(4) - np.outer(u, u), atol=1e-14)
+
+
+def test_exact_transition_is_the_exponential() -> None:
+    rng = np.random.default_rng(RNG_SEED + 1)
+    for scale in (0.0, 1e-9, 0.05, 1.0, 3.0):
+        d = rng.normal(size=3) * scale
+        q = _unit(rng, 4)
+        Phi = transition_exact(d)
+        np.testing.assert_allclose(Phi, expm(0.5 * Omega(d)), atol=1e-13)
+        np.testing.assert_allclose(Phi @ q, quat_mul(q, quat_exp(d)), atol=1e-14)
+
+
+@pytest.mark.parametrize(("a", "spec_error"), [(1e-1, 2.6e-9), (3e-1, 6.3e-7)])
+def test_picard4_error_matches_spec_table(a: float, spec_error: float) -> None:
+    """SPEC 2.2: ||Phi4 - Phi|| = 2.6e-9 at a = 0.1 rad and 6.3e-7 at 0.3 rad."""
+    d = a * _unit(np.random.default_rng(RNG_SEED + 2), 3)
+    err = np.linalg.norm(transition_picard4(d) - transition_exact(d), 2)
+    assert err == pytest.approx(spec_error, rel=0.03)
+
+
+def test_picard4_is_fifth_order() -> None:
+    d = _unit(np.random.default_rng(RNG_SEED + 3), 3)
+    e1 = np.linalg.norm(transition_picard4(0.2 * d) - transition_exact(0.2 * d), 2)
+    e2 = np.linalg.norm(transition_picard4(0.1 * d) - transition_exact(0.1 * d), 2)
+    assert np.log2(e1 / e2) == pytest.approx(5.0, abs=0.1)
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.2])
+def test_ekf7_jacobian_matches_finite_differences(dt: float) -> None:
+    rng = np.random.default_rng(RNG_SEED + 4)
+    for _ in range(5):
+        q, b = _unit(rng, 4), rng.normal(size=3) * 0.05
+        w_m = rng.normal(size=3) * 3.0  # up to ~0.6 rad per step at dt = 0.2: J_r matters
+
+        def f(x: np.ndarray, w_m: np.ndarray = w_m) -> np.ndarray:
+            return np.concatenate([transition_exact((w_m - x[4:]) * dt) @ x[:4], x[4:]])
+
+        x = np.concatenate([q, b])
+        F = ekf7_jacobian(q, (w_m - b) * dt, dt)
+        F_fd = _fd_jacobian(f, x)
+        assert _rel_err(F[:4, :4], F_fd[:4, :4]) < 1e-6
+        assert _rel_err(F[:4, 4:], F_fd[:4, 4:]) < 1e-6
+        np.testing.assert_array_equal(F[4:], np.hstack([np.zeros((3, 4)), np.eye(3)]))
+
+
+def test_vector_obs_and_its_jacobian() -> None:
+    rng = np.random.default_rng(RNG_SEED + 5)
+    for _ in range(10):
+        q = rng.normal(size=4)  # non-unit on purpose: the model is the quadratic form
+        r = rng.normal(size=3)
+        u = q / np.linalg.norm(q)
+        np.testing.assert_allclose(vector_obs(u, r), quat_rotate_inv(u, r), atol=1e-14)
+        H = vector_obs_jacobian(q, r)
+        assert _rel_err(H, _fd_jacobian(lambda x, r=r: vector_obs(x, r), q)) < 1e-6
+        # Euler's theorem for a homogeneous quadratic: why z - H x is wrong (SPEC 3.1).
+        np.testing.assert_allclose(H @ q, 2.0 * vector_obs(q, r), atol=1e-12)
+
+
+def test_normalization_jacobian_matches_finite_differences() -> None:
+    q = np.random.default_rng(RNG_SEED + 6).normal(size=4)
+    J_fd = _fd_jacobian(lambda x: x / np.linalg.norm(x), q)
+    assert _rel_err(normalization_jacobian(q), J_fd) < 1e-6
+
+
+def test_process_noise_equals_van_loan_without_rotation() -> None:
+    """At w = 0, Q_d of SPEC 2.3 is the exact Van Loan integral (q constant over the step)."""
+    q = _unit(np.random.default_rng(RNG_SEED + 7), 4)
+    sg, sb, dt = 2e-3, 3e-4, 0.05
+    F_c = np.zeros((7, 7))
+    F_c[:4, 4:] = -0.5 * Xi(q)
+    G = np.zeros((7, 6))
+    G[:4, :3] = -0.5 * Xi(q)
+    G[4:, 3:] = np.eye(3)
+    GQG = G @ np.diag([sg**2] * 3 + [sb**2] * 3) @ G.T
+    M = expm(np.block([[-F_c, GQG], [np.zeros((7, 7)), F_c.T]]) * dt)
+    Phi = M[7:, 7:].T
+    Q_vl = Phi @ M[:7, 7:]
+    Q = ekf7_process_noise(q, sg, sb, dt)
+    assert _rel_err(Q, Q_vl) < 1e-9
+    assert np.linalg.matrix_rank(Q[:4, :4], tol=1e-12 * np.abs(Q).max()) == 3
+    np.testing.assert_allclose(Q[:4, :4] @ q, 0.0, atol=1e-20)
+
+
+def test_attitude_covariance_maps() -> None:
+    rng = np.random.default_rng(RNG_SEED + 8)
+    q = _unit(rng, 4)
+    A = rng.normal(size=(3, 3))
+    P_att = A @ A.T
+    np.testing.assert_allclose(att_cov_from_quat_cov(q, quat_cov_from_att_cov(q, P_att)), P_att)
+    # dtheta ~ 2 Xi^T (q_true - q): the map the covariance conversion rests on.
+    dtheta = rng.normal(size=3) * 1e-5
+    dq = quat_mul(q, quat_exp(dtheta)) - q
+    np.testing.assert_allclose(2.0 * Xi(q).T @ dq, dtheta, rtol=1e-4)
+
+
+# --- (b) the paper's printed innovation ---------------------------------------------
+
+
+def _static_level_flight(seconds: float = 1.0) -> Flight:
+    """At rest, level, heading north, perfect sensors."""
+    site = Site(mag_n=np.array([28632e-9, -4032e-9, 44583e-9]))
+    t = np.arange(0.0, seconds, 0.005)
+    n = len(t)
+    imu = ImuStream(t=t, w_b=np.zeros((n, 3)), f_b=np.tile([0.0, 0.0, -site.gravity], (n, 1)))
+    mag = MagStream(t=t[::4], mag_b=np.tile(site.mag_n, (len(t[::4]), 1)))
+    return Flight(imu=imu, mag=mag, site=site)
+
+
+def test_printed_innovation_is_biased_and_ours_is_not() -> None:
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    z = np.array([0.0, 0.0, -9.80665]) / 9.80665  # perfect accelerometer, level, at rest
+    H = vector_obs_jacobian(q, UP_N)
+    np.testing.assert_allclose(z - H @ q, [0.0, 0.0, 1.0], atol=1e-15)  # paper eq. 26
+    np.testing.assert_allclose(z - vector_obs(q, UP_N), 0.0, atol=1e-15)
+
+    # The filter at the true state with perfect data: innovations vanish and the state
+    # stays put; with the printed form every accelerometer innovation would be [0, 0, 1].
+    flight = _static_level_flight()
+    est = PaperEKFNoWind().run(flight, initial=InitialState(q_nb=q))
+    acc = est.innovations["acc"]
+    assert len(acc.t) == len(flight.imu.t) - 1
+    np.testing.assert_allclose(acc.nu, 0.0, atol=1e-12)
+    np.testing.assert_allclose(est.innovations["mag"].nu, 0.0, atol=1e-12)
+    assert np.degrees(quat_angle(est.q_nb, q)).max() < 1e-9
+
+
+# --- (c) the paper's claim on its scenario ------------------------------------------
+
+
+@cache
+def _paper_flight(seed: int) -> Flight:
+    return simulate(PaperScenario(wind_speed=5.0, duration=10.0), np.random.default_rng(seed))
+
+
+def _errors_deg(est: Estimate, flight: Flight) -> tuple[np.ndarray, np.ndarray]:
+    """Total rotation error (N,) and roll/pitch/yaw errors (N, 3), deg."""
+    assert flight.truth is not None
+    total = np.degrees(quat_angle(est.q_nb, flight.truth.q_nb))
+    d = euler_from_quat(est.q_nb) - euler_from_quat(flight.truth.q_nb)
+    return total, np.degrees((d + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _rms(x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean(x**2, axis=0))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_paper_claim_wind_considered_beats_wind_ignored(seed: int) -> None:
+    """SPEC 7.4: oracle wind 1.7/0.6/0.7 deg vs no wind 2.0/1.0/3.2 (roll/pitch/yaw)."""
+    flight = _paper_flight(seed)
+    last = flight.imu.t >= flight.imu.t[-1] - 5.0
+    with_wind = PaperEKF().run(flight)
+    without = PaperEKFNoWind().run(flight)
+    tot_w, rpy_w = _errors_deg(with_wind, flight)
+    tot_n, rpy_n = _errors_deg(without, flight)
+    rmse_w, rmse_n = _rms(tot_w[last]), _rms(tot_n[last])
+    print(
+        f"seed {seed}: last-5-s RMSE deg total / roll pitch yaw: paper (oracle) {rmse_w:.2f} / "
+        f"{np.round(_rms(rpy_w[last]), 2)}; paper-nowind {rmse_n:.2f} / "
+        f"{np.round(_rms(rpy_n[last]), 2)}"
+    )
+    assert rmse_w < rmse_n
+    # Heading is where the air-flow row helps (SPEC 7.4: yaw 0.62 vs 2.66 deg).
+    assert _rms(rpy_w[last, 2]) < 0.6 * _rms(rpy_n[last, 2])
+    assert rmse_w < 3.0
+    assert with_wind.meta["wind"] == "oracle"
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_paper_filter_converges_from_its_q0(seed: int) -> None:
+    flight = _paper_flight(seed)
+    total, _ = _errors_deg(PaperEKF().run(flight), flight)
+    print(f"seed {seed}: paper error at samples 0/50/100: {total[[0, 50, 100]].round(2)} deg")
+    assert total[0] > 20.0  # q0 = [1, 0, 0, 0] really is wrong
+    assert total[100] < 10.0
+    assert total[100:].max() < 10.0
+
+
+def test_baselines_on_the_paper_scenario_have_their_shapes() -> None:
+    flight = _paper_flight(0)
+    last = flight.imu.t >= flight.imu.t[-1] - 5.0
+    n = len(flight.imu.t)
+    for est, labels in (
+        (PaperEKF(), ("q_w", "q_x", "q_y", "q_z")),
+        (PaperEKFNoWind(), ("q_w", "q_x", "q_y", "q_z")),
+        (TraditionalEKF(), ("att_x", "att_y", "att_z")),
+        (AdditiveUKF(), ("att_x", "att_y", "att_z", "bg_x", "bg_y", "bg_z")),
+    ):
+        out = est.run(flight)
+        total, rpy = _errors_deg(out, flight)
+        print(
+            f"{est.name}: last-5-s RMSE {_rms(total[last]):.2f} deg, "
+            f"roll/pitch/yaw {np.round(_rms(rpy[last]), 2)}"
+        )
+        assert out.filter == est.name
+        assert out.state_labels == labels
+        assert out.cov is not None and out.cov.shape == (n, len(labels), len(labels))
+        assert (out.gyro_bias_b is not None) == isinstance(est, AdditiveUKF)
+        np.testing.assert_allclose(np.linalg.norm(out.q_nb, axis=1), 1.0, atol=1e-12)
+        assert (out.q_nb[:, 0] >= 0).all()
+        assert set(out.innovations) >= {"acc", "mag"}
+        assert all(inn.accepted.all() for inn in out.innovations.values())
+        assert _rms(total[last]) < 6.0
+
+
+# --- (d) zero noise, zero wind: exactness from a truth init -------------------------
+
+
+@cache
+def _turntable_flight() -> Flight:
+    """The paper's attitude motion, noise-free, with the accelerometer seeing gravity only:
+    every filter model is then exact (the paper scenario's own 1 m/s flight has a small
+    centripetal acceleration, a model error of ~0.5 deg)."""
+    sensors = SensorSuite().noiseless()
+    flight = simulate(PaperScenario(wind_speed=0.0, duration=5.0), np.random.default_rng(3), sensors)
+    assert flight.truth is not None
+    f_b = quat_rotate_inv(flight.truth.q_nb, -flight.site.gravity_n)
+    return flight.replace(imu=ImuStream(t=flight.imu.t, w_b=flight.imu.w_b, f_b=f_b))
+
+
+@pytest.mark.parametrize(
+    "est", [TraditionalEKF(), AdditiveUKF(), PaperEKFNoWind()], ids=lambda e: e.name
+)
+def test_zero_noise_stays_on_truth(est) -> None:
+    flight = _turntable_flight()
+    assert flight.truth is not None
+    assert np.abs(flight.imu.w_b).max() > 3 * DEG  # it does rotate
+    out = est.run(flight, initial=InitialState.from_truth(flight, sigma_att=0.1 * DEG))
+    err = np.degrees(quat_angle(out.q_nb, flight.truth.q_nb))
+    print(f"{est.name}: max error {err.max():.2e} deg")
+    assert err.max() < 0.05
+    if out.gyro_bias_b is not None:
+        assert np.abs(out.gyro_bias_b).max() < 0.01 * DEG
+
+
+# --- (e) bad input -----------------------------------------------------------------
+
+
+@cache
+def _short_flight(vanes: bool = True) -> Flight:
+    sensors = SensorSuite() if vanes else SensorSuite(vanes=None)
+    return simulate(PaperScenario(wind_speed=5.0, duration=2.0), np.random.default_rng(7), sensors)
+
+
+def test_paper_filter_needs_vanes() -> None:
+    no_vanes = _short_flight(vanes=False)
+    with pytest.raises(MissingSensorError, match="vanes") as info:
+        PaperEKF().run(no_vanes)
+    assert "paper" in str(info.value) and "air" in str(info.value)
+    assert info.value.sensor == "air"
+    with pytest.raises(MissingSensorError, match="vanes"):
+        PaperEKF().run(no_vanes.replace(air=None))
+    # The filter without the air-data rows runs without them.
+    PaperEKFNoWind().run(no_vanes.replace(air=None, gnss=None))
+
+
+def test_missing_magnetometer_is_named() -> None:
+    flight = _short_flight().replace(mag=None)
+    for est in (PaperEKFNoWind(), TraditionalEKF(), AdditiveUKF()):
+        with pytest.raises(MissingSensorError, match="mag") as info:
+            est.run(flight)
+        assert est.name in str(info.value)
+
+
+def test_oracle_wind_needs_truth() -> None:
+    flight = _short_flight().replace(truth=None)
+    with pytest.raises(ValueError, match="oracle.*truth"):
+        PaperEKF().run(flight)
+    with pytest.raises(ValueError, match="mean_wind_n"):
+        PaperEKF(PaperParams(wind="mean")).run(flight)
+    out = PaperEKF(PaperParams(wind="mean", mean_wind_n=(-4.0, -2.0, 0.0))).run(flight)
+    assert out.meta["wind"] == "mean"
+    with pytest.raises(ValueError, match="wind provider"):
+        PaperEKF().streamer(flight.site)
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda: PaperNoWindParams(process_var=-0.02), "process_var"),
+        (lambda: PaperNoWindParams(p0_var=float("nan")), "p0_var"),
+        (lambda: PaperNoWindParams(init="identity"), "init"),  # type: ignore[arg-type]
+        (lambda: PaperParams(acc_var=0.0), "acc_var"),
+        (lambda: PaperParams(air_var=-1.0), "air_var"),
+        (lambda: PaperParams(wind="gusty"), "wind"),  # type: ignore[arg-type]
+        (lambda: PaperParams(mean_wind_n=(1.0, 2.0)), "mean_wind_n"),  # type: ignore[arg-type]
+        (lambda: PaperParams(mean_wind_n=(1.0, 2.0, float("inf"))), "mean_wind_n"),
+        (lambda: TraditionalEKFParams(gyro_noise=0.0), "gyro_noise"),
+        (lambda: TraditionalEKFParams(accel_sigma_unit=-0.1), "accel_sigma_unit"),
+        (lambda: AdditiveUKFParams(alpha=2.0), "alpha"),
+        (lambda: AdditiveUKFParams(kappa=-8.0), "kappa"),
+        (lambda: AdditiveUKFParams(gyro_bias_rw=float("nan")), "gyro_bias_rw"),
+    ],
+)
+def test_bad_params_name_the_field(make, field: str) -> None:
+    with pytest.raises(ValueError, match=f"\\.{field}: expected"):
+        make()
+
+
+# --- initialisation variants --------------------------------------------------------
+
+
+def test_triad_init_starts_near_truth() -> None:
+    flight = _paper_flight(0)
+    for est in (PaperEKF(PaperParams(init="triad")), TraditionalEKF(), AdditiveUKF()):
+        total, _ = _errors_deg(est.run(flight), flight)
+        assert total[0] < 5.0, est.name
+
+
+def test_unknown_site_field_takes_magnetic_north() -> None:
+    """Without ``site.mag_n`` heading is magnetic: off by the declination (-8 deg at Dalian)."""
+    flight = _paper_flight(1)
+    assert flight.site.mag_n is not None and flight.truth is not None
+    decl = np.degrees(np.arctan2(flight.site.mag_n[1], flight.site.mag_n[0]))
+    out = PaperEKFNoWind().run(flight.replace(site=Site(mag_n=None)))
+    _, rpy = _errors_deg(out, flight)
+    last = flight.imu.t >= flight.imu.t[-1] - 5.0
+    assert np.mean(rpy[last, 2]) == pytest.approx(-decl, abs=1.5)
+
+
+# --- (f) streaming equals batch -----------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "est",
+    [PaperEKF(), PaperEKF(PaperParams(init="triad")), PaperEKFNoWind(), TraditionalEKF(), AdditiveUKF()],
+    ids=lambda e: f"{e.name}-{getattr(e.params, 'init', '')}",
+)
+def test_streaming_equals_batch(est) -> None:
+    flight = _short_flight()
+    batch = est.run(flight)
+    has = est.uses & frozenset(flight.streams())
+    kw = {"wind": est.wind_provider(flight)} if isinstance(est, PaperEKF) else {}
+    s = est.streamer(flight.site, has=has, **kw)
+    t_ev, kinds, vals = merge_events(flight, has)
+    for k, t, v in zip(kinds, t_ev, vals, strict=True):
+        s.push(int(k), float(t), v)
+    st = s.state
+    np.testing.assert_array_equal(st.q_nb, batch.q_nb[-1])
+    assert batch.cov is not None and st.cov is not None
+    np.testing.assert_array_equal(st.cov, batch.cov[-1])
+    if batch.gyro_bias_b is not None:
+        np.testing.assert_array_equal(st.gyro_bias_b, batch.gyro_bias_b[-1])
+    for sensor, inn in s.innovations().items():
+        np.testing.assert_array_equal(inn.nu, batch.innovations[sensor].nu)
+
+
+def test_nan_samples_are_skipped_and_counted() -> None:
+    flight = _short_flight()
+    assert flight.air is not None and flight.air.aoa is not None
+    aoa = flight.air.aoa.copy()
+    aoa[5] = np.nan
+    f_b = flight.imu.f_b.copy()
+    f_b[40] = np.nan
+    bad = flight.replace(
+        air=type(flight.air)(t=flight.air.t, tas=flight.air.tas, aoa=aoa, sideslip=flight.air.sideslip),
+        imu=ImuStream(t=flight.imu.t, w_b=flight.imu.w_b, f_b=f_b),
+    )
+    out = PaperEKF().run(bad)
+    assert out.skipped["air"] == 1 and out.skipped["imu"] == 1
+    assert np.isfinite(out.q_nb).all()
+
+
+def test_params_load_from_toml(tmp_path) -> None:
+    good = tmp_path / "paper.toml"
+    good.write_text('[windahrs]\nwind = "mean"\nmean_wind_n = [-4.0, -2.0, 0.0]\nair_var = 5.0\n')
+    p = PaperEKF.load_params(good)
+    assert p == PaperParams(wind="mean", mean_wind_n=(-4.0, -2.0, 0.0), air_var=5.0)
+    ukf = tmp_path / "ukf.toml"
+    ukf.write_text("[windahrs]\nkappa = 2.0\n")
+    assert AdditiveUKF.load_params(ukf).kappa == 2.0
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[windahrs]\nprocess_var = 0.01\nairspeed_var = 3.0\n")
+    with pytest.raises(ValueError, match="airspeed_var"):
+        PaperEKF.load_params(bad)
+    bad.write_text("[px4]\nEKF2_GYR_NOISE = 0.015\n")
+    with pytest.raises(ValueError, match="px4"):
+        TraditionalEKF.load_params(bad)
+    bad.write_text("[windahrs]\nacc_var = -1.0\n")
+    with pytest.raises(ValueError, match="acc_var"):
+        PaperEKFNoWind.load_params(bad)
