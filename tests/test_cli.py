@@ -96,3 +96,65 @@ def test_console_script_help_lists_commands() -> None:
         [sys.executable, "-m", "windahrs.cli", "--help"], capture_output=True, text=True, check=True
     )
     assert "simulate" in res.stdout and "info" in res.stdout
+
+
+@pytest.fixture(scope="module")
+def gusty_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("cli") / "fw.h5"
+    assert main(["simulate", "--wind", "8", "--duration", "6", "--seed", "2", "--out", str(out)]) == 0
+    return out
+
+
+def test_estimate_writes_an_estimate_and_prints_rmse(
+    gusty_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from windahrs.estimate import load_estimate
+
+    capsys.readouterr()
+    out = tmp_path / "est.h5"
+    assert main(["estimate", str(gusty_file), "--filter", "ins-wind", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "ins-wind: RMSE vs truth from sample 50: roll" in text and "total" in text
+    est = load_estimate(out)
+    assert est.filter == "ins-wind" and est.wind_n is not None and est.cov is not None
+    assert set(est.innovations) >= {"gnss", "mag", "air"}
+
+
+def test_estimate_with_params_file_and_bad_names(
+    gusty_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    p = tmp_path / "p.toml"
+    p.write_text('[windahrs]\nmag_mode = "heading"\n[px4]\nEKF2_MAG_NOISE = 0.02\n')
+    assert main(["estimate", str(gusty_file), "--filter", "mekf", "--params", str(p)]) == 0
+    capsys.readouterr()
+    assert main(["estimate", str(gusty_file), "--filter", "nope"]) == 2
+    assert "unknown 'nope'; known filters:" in capsys.readouterr().err
+    assert main(["estimate", str(tmp_path / "missing.h5"), "--filter", "mekf"]) == 2
+    assert "missing.h5" in capsys.readouterr().err
+
+
+def test_compare_table_and_json(gusty_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    capsys.readouterr()
+    assert main(["compare", str(gusty_file), "--filters", "mekf,ins-wind,paper:wind=mean"]) == 0
+    table = capsys.readouterr().out
+    assert "RMSE in deg against truth" in table
+    assert "paper:wind=mean" in table
+    assert main(["compare", str(gusty_file), "--filters", "mekf,ins-wind", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["filter"] for r in rows] == ["mekf", "ins-wind"]
+    for r in rows:
+        assert r["reference"] == "truth"
+        assert len(r["rmse_from50_deg"]) == 3 and len(r["rmse_steady_deg"]) == 3
+        assert r["rmse_total_deg"] >= r["rmse_tilt_deg"] * 0.99
+
+
+def test_experiment_command(capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    assert main(["experiment", "--runs", "1", "--duration", "4", "--filters", "ins-wind,mekf", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["filter"] for r in rows] == ["ins-wind", "mekf"] and rows[0]["runs"] == 1
+    assert main(["experiment", "--runs", "0"]) == 2
+    assert "--runs: expected an integer >= 1" in capsys.readouterr().err

@@ -47,6 +47,47 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+DEFAULT_EXPERIMENT_FILTERS = (
+    "ins-wind,mekf-air,mekf,mekf:accel_compensation=airspeed,ekf7,ekf10,usque,"
+    "paper,paper:wind=mean,paper-nowind,ekf,ukf"
+)
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    import json
+
+    from windahrs.experiments.wind import run_wind_experiment
+
+    specs = [s.strip() for s in args.filters.split(",") if s.strip()]
+    if args.runs < 1:
+        raise UsageError(f"--runs: expected an integer >= 1, found {args.runs}")
+    with tqdm(total=args.runs * len(specs), desc="experiment", unit="run", disable=None, file=sys.stderr) as bar:
+
+        def step(done: int, total: int) -> None:
+            bar.update(done - bar.n)
+
+        rows = run_wind_experiment(
+            args.vehicle, args.wind, args.duration, args.runs, specs, altitude=args.altitude,
+            seed0=args.seed, progress=step,
+        )
+    if args.json:
+        print(json.dumps([r.as_dict() for r in rows], indent=1))
+        return 0
+    print(
+        f"{args.vehicle}, W20 = {args.wind} m/s, {args.duration} s, {args.runs} runs (seeds {args.seed}..): "
+        "RMSE in deg against truth; from sample 50 | second half"
+    )
+    axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
+    print(f"{'filter':<36}{axes}{axes}{'tilt':>8}{'total':>8}{'s/run':>8}")
+    for r in rows:
+        a, b = r.rmse_from50_deg, r.rmse_steady_deg
+        print(
+            f"{r.filter:<36}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
+            f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}{r.seconds:8.2f}"
+        )
+    return 0
+
+
 def _cmd_filters(args: argparse.Namespace) -> int:
     from windahrs.filters.registry import REGISTRY, names
 
@@ -222,6 +263,25 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--filters", required=True, metavar="A,B,...", help="comma-separated estimator names")
     c.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
     c.set_defaults(func=_cmd_compare)
+
+    x = sub.add_parser(
+        "experiment",
+        help="Monte Carlo: estimators on N simulated flights in wind, RMSE per axis",
+        description="Simulate N seeded flights of one scenario and run every estimator on each; print "
+        "RMSE per axis (from sample 50 and over the second half), tilt and total, aggregated over runs. "
+        "Filters are registry names, optionally with parameter overrides: NAME:field=value:field=value "
+        "(e.g. paper:wind=mean).",
+    )
+    x.add_argument("--vehicle", choices=("fixedwing", "quadrotor", "paper"), default="fixedwing")
+    x.add_argument("--wind", type=float, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
+    x.add_argument("--duration", type=float, default=120.0, metavar="S", help="seconds (default 120)")
+    x.add_argument("--altitude", type=float, default=None, metavar="H", help="m (vehicle default)")
+    x.add_argument("--runs", type=int, default=5, metavar="N", help="flights (default 5)")
+    x.add_argument("--seed", type=int, default=0, metavar="N", help="first seed (default 0)")
+    x.add_argument("--filters", default=DEFAULT_EXPERIMENT_FILTERS, metavar="A,B,...",
+                   help=f"estimator specs (default: {DEFAULT_EXPERIMENT_FILTERS})")
+    x.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    x.set_defaults(func=_cmd_experiment)
 
     fl = sub.add_parser("filters", help="list the estimators", description="List the registered estimators.")
     fl.set_defaults(func=_cmd_filters)

@@ -266,8 +266,16 @@ class Estimator(ABC):
     :meth:`streamer`."""
 
     name: ClassVar[str]
+    #: How results are labelled: the registry spec when built with overrides.
+    label: str
     requires: ClassVar[frozenset[str]] = frozenset({"imu"})
     uses: ClassVar[frozenset[str]] = frozenset({"imu"})
+
+    def __getattr__(self, attr: str) -> str:
+        # ``label`` defaults to the registry name unless an instance sets it.
+        if attr == "label":
+            return self.name
+        raise AttributeError(attr)
 
     def check(self, flight: Flight) -> None:
         """Raise MissingSensorError naming the filter and the first missing sensor."""
@@ -331,7 +339,7 @@ def replay(
         return np.asarray(rows[key]) if len(rows[key]) == n else None
 
     return Estimate(
-        filter=est.name,
+        filter=est.label,
         t=flight.imu.t.copy(),
         q_nb=q,
         gyro_bias_b=stack("bg"),

@@ -6,6 +6,7 @@ needed when its adapter is used.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from pathlib import Path
 
@@ -44,11 +45,50 @@ def names() -> list[str]:
     return out
 
 
-def make_estimator(name: str, params_file: str | Path | None = None) -> Estimator:
-    """Build an estimator by name, with parameters from a TOML file when given.
+def _value(text: str) -> object:
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
-    Unknown names raise ValueError listing the known ones.
+
+def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimator:
+    """Build an estimator from a spec ``NAME`` or ``NAME:field=value:field=value`` (fields of
+    its parameter record, e.g. ``paper:wind=mean`` or ``mekf:mag_mode=heading``), with
+    parameters from a TOML file first when given.
+
+    Unknown names raise ValueError listing the known ones; unknown fields name the field.
     """
+    name, *assignments = spec.split(":")
+    overrides: dict[str, object] = {}
+    for a in assignments:
+        key, sep, val = a.partition("=")
+        if not sep or not key:
+            raise ValueError(f"filter {spec!r}: expected NAME:field=value, found {a!r}")
+        overrides[key.strip()] = _value(val.strip())
+    est = _build(name, params_file)
+    if not overrides:
+        return est
+    params = getattr(est, "params", None)
+    if params is None or not dataclasses.is_dataclass(params):
+        raise ValueError(f"filter {name!r} takes no parameters, found {sorted(overrides)}")
+    known = {f.name for f in dataclasses.fields(params)}
+    for key in overrides:
+        if key not in known:
+            raise ValueError(f"filter {name!r}: unknown parameter {key!r}; known: {', '.join(sorted(known))}")
+    est_new = type(est)(dataclasses.replace(params, **overrides))  # type: ignore[call-arg, type-var]
+    est_new.label = spec  # type: ignore[attr-defined]
+    return est_new
+
+
+def _build(name: str, params_file: str | Path | None) -> Estimator:
     if name not in REGISTRY:
         raise ValueError(f"filter: unknown {name!r}; known filters: {', '.join(names())}")
     module, cls_name, _ = REGISTRY[name]

@@ -1,0 +1,2 @@
+"""Experiments: Monte Carlo runs of estimators on simulated flights, and the paper's
+reproduction."""
