@@ -25,6 +25,7 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "mekf": ("windahrs.filters.eskf", "Mekf", "error-state EKF, attitude + gyro bias"),
     "mekf-air": ("windahrs.filters.eskf", "MekfAir", "error-state EKF with wind states and air data"),
     "ins-wind": ("windahrs.filters.eskf", "InsWind", "error-state INS with wind states (recommended)"),
+    "usque": ("windahrs.filters.usque", "Usque", "error-state unscented filter (USQUE)"),
     "ahrs-ekf": ("windahrs.baselines", "AhrsEkf", "ahrs package EKF"),
     "madgwick": ("windahrs.baselines", "Madgwick", "ahrs package Madgwick"),
     "mahony": ("windahrs.baselines", "Mahony", "ahrs package Mahony"),
