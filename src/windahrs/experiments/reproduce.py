@@ -91,7 +91,7 @@ def _estimator(c: Case) -> Any:
     """The paper's filters with the paper's constants; the physically tuned filters with
     parameters equal to the simulated sensors' datasheet noise (what a user tuning from
     the datasheet would set); outside baselines with their library defaults."""
-    est = make_estimator(c.filter)
+    est: Any = make_estimator(c.filter)
     if c.filter in PHYSICAL and hasattr(est, "params"):
         from windahrs.filters.params import matched_to
         from windahrs.sim.scenario import default_sensors

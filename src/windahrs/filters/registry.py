@@ -30,6 +30,7 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "madgwick": ("windahrs.baselines", "Madgwick", "ahrs package Madgwick"),
     "mahony": ("windahrs.baselines", "Mahony", "ahrs package Mahony"),
     "vqf": ("windahrs.baselines", "Vqf", "vqf package VQF"),
+    "vqf-offline": ("windahrs.baselines", "VqfOffline", "vqf package offline VQF (non-causal, no streaming)"),
     "imufusion": ("windahrs.baselines", "ImuFusion", "imufusion (x-io Fusion) AHRS"),
 }
 
