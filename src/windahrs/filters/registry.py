@@ -86,7 +86,7 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
         if key not in known:
             raise ValueError(f"filter {name!r}: unknown parameter {key!r}; known: {', '.join(sorted(known))}")
     est_new = type(est)(dataclasses.replace(params, **overrides))  # type: ignore[call-arg, type-var]
-    est_new.label = spec  # type: ignore[attr-defined]
+    est_new.label = spec
     return est_new
 
 
