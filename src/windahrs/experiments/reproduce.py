@@ -165,6 +165,7 @@ def run_reproduction(
                 "convergence_samples": convergence_index(np.median(total, axis=0), CONVERGENCE_DEG),
                 "pcrb_ratio": None,
                 "nees_in_band": None,
+                "bound": c.bound,
             }
             if c.bound is not None and bound_fn is not None:
                 if c.bound not in bounds:

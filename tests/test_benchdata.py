@@ -1,0 +1,345 @@
+"""Benchmark on recorded data (BROAD metrics), alignment of a reference, and the real-data
+acceptance checks: BROAD trials, PX4 sample.ulg against EKF2, ALFA wind against ArduPilot.
+
+Real-data tests skip, saying why, when ../shared/data (or $WINDAHRS_DATA) is absent.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import require_data
+from trajectories import rotating_in_place
+from windahrs.estimate import Estimate
+from windahrs.experiments import benchdata
+from windahrs.experiments.align import Alignment, apply_alignment, estimate_alignment, quat_average
+from windahrs.experiments.benchdata import (
+    BenchResult,
+    TrialScore,
+    bench_data,
+    broad_errors,
+    discover_trials,
+    split_error,
+)
+from windahrs.filters.base import Estimator
+from windahrs.filters.registry import make_estimator, names
+from windahrs.flight import Flight, ImuStream, Reference
+from windahrs.io import read_flight
+from windahrs.metrics import attitude_errors, score
+from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
+from windahrs.sim.scenario import make_scenario, simulate
+
+DEG = math.pi / 180.0
+BROAD_TRIALS = 7
+ALFA_SEQUENCE = "carbonZ_2018-07-18-15-53-31_1_engine_failure"
+
+
+def _fast(spec: str) -> Estimator:
+    """The registry's estimator, or its compiled twin (same name, parameters and output,
+    tested equal sample by sample in test_compiled.py) when the registry still points at
+    the readable reference: the reference [mekf] needs about a minute per BROAD trial."""
+    est = make_estimator(spec)
+    try:
+        from windahrs.filters import compiled
+    except ImportError:
+        return est
+    twins = {"Mekf": "MekfFast", "MekfAir": "MekfAirFast", "InsWind": "InsWindFast", "Ekf7": "Ekf7Fast"}
+    twin = getattr(compiled, twins.get(type(est).__name__, ""), None)
+    if twin is None or isinstance(est, twin):
+        return est
+    fast: Estimator = twin(est.params)  # type: ignore[attr-defined]
+    if ":" in spec:
+        fast.label = spec
+    return fast
+
+
+# -- the error decomposition, on synthetic attitudes -------------------------------------
+
+
+def _flight_with_reference(q_ref: np.ndarray, t: np.ndarray, *, heading_free: bool) -> Flight:
+    n = len(t)
+    imu = ImuStream(t=t, w_b=np.zeros((n, 3)), f_b=np.tile([0.0, 0.0, -9.80665], (n, 1)))
+    kind = "mocap" if heading_free else "autopilot"
+    return Flight(imu=imu, reference=Reference(t=t, q_nb=q_ref, kind=kind, heading_free=heading_free))
+
+
+def _attitudes() -> tuple[np.ndarray, np.ndarray]:
+    traj = rotating_in_place(30.0, 50.0)  # roll +-40, pitch +-25 deg, yaw sweeping
+    return traj.t, traj.q_nb
+
+
+def test_split_error_pure_heading_and_pure_tilt() -> None:
+    total, heading, incl = split_error(quat_exp(np.array([[0.0, 0.0, 10 * DEG], [0.0, -5 * DEG, 0.0]])))
+    assert np.allclose(np.degrees(total), [10.0, 5.0])
+    assert np.allclose(np.degrees(heading), [10.0, 0.0])
+    assert np.allclose(np.degrees(incl), [0.0, 5.0], atol=1e-6)
+    # q and -q are the same error
+    t2, h2, _ = split_error(-quat_exp(np.array([0.0, 0.0, 10 * DEG])))
+    assert np.isclose(np.degrees(h2), 10.0) and np.isclose(np.degrees(t2), 10.0)
+
+
+def test_pure_heading_error_gives_heading_only() -> None:
+    t, q_ref = _attitudes()
+    q_est = quat_mul(quat_exp(np.array([0.0, 0.0, 10 * DEG])), q_ref)  # nav-frame yaw error
+    err = broad_errors(Estimate(filter="x", t=t, q_nb=q_est), _flight_with_reference(q_ref, t, heading_free=False))
+    assert np.allclose(np.degrees(err.heading), 10.0, atol=1e-9)
+    assert np.allclose(np.degrees(err.inclination), 0.0, atol=1e-6)
+    assert np.allclose(np.degrees(err.total), 10.0, atol=1e-9)
+    # A heading-free reference: the constant heading offset is removed, nothing is left.
+    free = broad_errors(Estimate(filter="x", t=t, q_nb=q_est), _flight_with_reference(q_ref, t, heading_free=True))
+    assert np.isclose(np.degrees(free.heading_offset), 10.0)
+    assert np.degrees(free.total).max() < 1e-6
+
+
+def test_pure_tilt_error_gives_inclination_only() -> None:
+    t, q_ref = _attitudes()
+    axis = np.column_stack([np.cos(0.7 * t), np.sin(0.7 * t), np.zeros_like(t)])  # horizontal, turning
+    q_est = quat_mul(quat_exp(5 * DEG * axis), q_ref)
+    for free in (False, True):
+        flight = _flight_with_reference(q_ref, t, heading_free=free)
+        err = broad_errors(Estimate(filter="x", t=t, q_nb=q_est), flight)
+        assert np.allclose(np.degrees(err.inclination), 5.0, atol=1e-9)
+        assert np.allclose(np.degrees(err.heading), 0.0, atol=1e-6)
+        assert np.allclose(np.degrees(err.total), 5.0, atol=1e-9)
+
+
+def test_inclination_is_the_metrics_tilt_and_parts_compose(rng: np.random.Generator) -> None:
+    t, q_ref = _attitudes()
+    q_est = quat_mul(quat_exp(rng.normal(0.0, 4 * DEG, (len(t), 3))), q_ref)
+    flight = _flight_with_reference(q_ref, t, heading_free=False)
+    est = Estimate(filter="x", t=t, q_nb=q_est)
+    err = broad_errors(est, flight)
+    ref = attitude_errors(est, flight)
+    assert np.array_equal(err.index, ref.index)
+    assert np.allclose(err.inclination, ref.tilt, atol=1e-9)
+    assert np.allclose(err.total, ref.total, atol=1e-9)
+    # swing-twist: cos(total/2) = cos(heading/2) cos(inclination/2)
+    assert np.allclose(np.cos(err.total / 2), np.cos(err.heading / 2) * np.cos(err.inclination / 2))
+
+
+def test_reference_gaps_and_mask_are_not_scored() -> None:
+    t, q_ref = _attitudes()
+    q_gap = q_ref.copy()
+    q_gap[100:150] = np.nan
+    mask = np.ones(len(t), dtype=bool)
+    mask[:50] = False
+    n = len(t)
+    flight = Flight(
+        imu=ImuStream(t=t, w_b=np.zeros((n, 3)), f_b=np.tile([0.0, 0.0, -9.8], (n, 1))),
+        reference=Reference(t=t, q_nb=q_gap, kind="mocap", heading_free=True, mask=mask),
+    )
+    err = broad_errors(Estimate(filter="x", t=t, q_nb=q_ref), flight)
+    assert len(err.index) == n - 100
+    assert not np.isin(np.r_[0:50, 100:150], err.index).any()
+
+
+# -- the result record and the file discovery -----------------------------------------
+
+
+def _result() -> BenchResult:
+    rows = [
+        TrialScore(trial, f, total, incl, head, 100, 0.1)
+        for trial, f, total, incl, head in [
+            ("a", "mekf", 1.0, 0.5, 0.8),
+            ("a", "vqf", 2.0, 0.6, 1.9),
+            ("b", "mekf", 3.0, 0.7, 2.9),
+            ("b", "vqf", 4.0, 0.8, 3.9),
+            ("c", "mekf", 5.0, 0.9, 4.9),
+            ("c", "vqf", 6.0, 1.0, 5.9),
+        ]
+    ]
+    return BenchResult(scores=tuple(rows), trial_names=("a", "b", "c"), filters=("mekf", "vqf"))
+
+
+def test_json_schema_and_median() -> None:
+    out = json.loads(json.dumps(_result().as_json()))
+    assert set(out) == {"trials", "median"}
+    assert out["trials"][0] == {
+        "trial": "a", "filter": "mekf", "total_deg": 1.0, "inclination_deg": 0.5, "heading_deg": 0.8
+    }
+    assert out["median"] == {
+        "mekf": {"total_deg": 3.0, "inclination_deg": 0.7, "heading_deg": 2.9},
+        "vqf": {"total_deg": 4.0, "inclination_deg": 0.8, "heading_deg": 3.9},
+    }
+
+
+def test_table_has_a_block_per_trial_and_the_median() -> None:
+    text = _result().table()
+    for trial in ("a", "b", "c"):
+        assert f"{trial}: RMSE in deg" in text
+    assert "median over 3 trials: RMSE in deg" in text
+    assert text.splitlines()[-1].split() == ["vqf", "4.000", "0.800", "3.900"]
+
+
+def test_discover_trials_sorted_and_errors(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match=str(tmp_path)):
+        discover_trials(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no such directory"):
+        discover_trials(tmp_path / "missing")
+    for name in ("b.hdf5", "a.h5", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in discover_trials(tmp_path)] == ["a.h5", "b.hdf5"]
+
+
+def test_bench_data_rejects_a_bad_spec_before_reading(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown 'nosuch'"):
+        bench_data([tmp_path / "missing.hdf5"], ["nosuch"])
+    with pytest.raises(ValueError, match="duplicates"):
+        bench_data([tmp_path / "missing.hdf5"], ["mekf", "mekf"])
+
+
+# -- alignment ----------------------------------------------------------------------------
+
+OFFSET_S = 0.12
+
+
+def _mount(rng: np.random.Generator) -> np.ndarray:
+    axis = rng.normal(size=3)
+    return quat_exp(3 * DEG * axis / np.linalg.norm(axis))
+
+
+def _misaligned(t: np.ndarray, q_true: np.ndarray, mount: np.ndarray, *, heading_free: bool) -> Flight:
+    """The truth as a reference seen through a mount and stamped OFFSET_S late (plus, when
+    heading-free, an arbitrary heading datum)."""
+    q_ref = quat_mul(q_true, quat_conj(mount))
+    if heading_free:
+        q_ref = quat_mul(quat_exp(np.array([0.0, 0.0, 0.7])), q_ref)
+    return _flight_with_reference(q_ref, t + OFFSET_S, heading_free=heading_free)
+
+
+def _smooth_estimate(t: np.ndarray, q_true: np.ndarray) -> Estimate:
+    """The truth with a slowly varying 0.1 deg error, as a good estimator would give."""
+    err = 0.1 * DEG * np.column_stack([np.sin(0.3 * t + k) for k in range(3)])
+    return Estimate(filter="x", t=t, q_nb=quat_mul(q_true, quat_exp(err)))
+
+
+def _mount_error_deg(found: np.ndarray, mount: np.ndarray) -> float:
+    return float(np.degrees(np.linalg.norm(quat_log(quat_mul(quat_conj(found), mount)))))
+
+
+def test_alignment_recovers_mount_and_offset_on_a_simulated_fixed_wing(rng: np.random.Generator) -> None:
+    flight = simulate(make_scenario("fixedwing", wind=4.0, duration=60.0), rng)
+    assert flight.truth is not None
+    t, q = flight.truth.t, flight.truth.q_nb
+    mount = _mount(rng)
+    misaligned = _misaligned(t, q, mount, heading_free=False)
+    al = estimate_alignment(_smooth_estimate(t, q), misaligned)
+    assert abs(al.time_offset_s - OFFSET_S) < 0.005
+    assert _mount_error_deg(al.q_mount, mount) < 0.1
+    assert al.correlation > 0.99
+    # Applied, the reference matches the truth again (up to the 0.1 deg estimate error).
+    aligned = apply_alignment(misaligned, al)
+    err = broad_errors(Estimate(filter="truth", t=t, q_nb=q), aligned)
+    assert np.degrees(err.total).max() < 0.05
+    assert aligned.meta["reference.time_offset_s"] == al.time_offset_s
+
+
+def test_alignment_with_a_heading_free_reference(rng: np.random.Generator) -> None:
+    traj = rotating_in_place(60.0, 200.0)
+    mount = _mount(rng)
+    misaligned = _misaligned(traj.t, traj.q_nb, mount, heading_free=True)
+    al = estimate_alignment(_smooth_estimate(traj.t, traj.q_nb), misaligned)
+    assert abs(al.time_offset_s - OFFSET_S) < 0.005
+    assert _mount_error_deg(al.q_mount, mount) < 0.1
+    assert al.residual_deg < 0.2
+
+
+def test_alignment_bad_input() -> None:
+    t, q = _attitudes()
+    flight = _flight_with_reference(q, t, heading_free=False)
+    with pytest.raises(ValueError, match="max_offset_s"):
+        estimate_alignment(Estimate(filter="x", t=t, q_nb=q), flight, max_offset_s=0.0)
+    still = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    with pytest.raises(ValueError, match="barely rotates"):
+        estimate_alignment(Estimate(filter="x", t=t, q_nb=still), _flight_with_reference(still, t, heading_free=False))
+    with pytest.raises(ValueError, match="reference"):
+        apply_alignment(flight.replace(reference=None), Alignment(q_mount=np.array([1.0, 0, 0, 0]), time_offset_s=0.0))
+
+
+def test_quat_average_is_sign_insensitive(rng: np.random.Generator) -> None:
+    q0 = quat_exp(np.array([0.3, -0.2, 0.5]))
+    q = quat_mul(q0, quat_exp(rng.normal(0.0, 0.01, (500, 3))))
+    q[::2] *= -1.0
+    assert _mount_error_deg(quat_average(q), quat_normalize(q0)) < 0.1
+
+
+# -- real data ------------------------------------------------------------------------------
+
+
+def test_broad_trials_mekf_and_vqf(monkeypatch: pytest.MonkeyPatch) -> None:
+    folder = require_data("broad")
+    paths = discover_trials(folder)
+    assert len(paths) == BROAD_TRIALS, f"expected the {BROAD_TRIALS} BROAD trials in {folder}"
+    specs = ["mekf"]
+    if "vqf" in names():
+        specs.append("vqf")
+    monkeypatch.setattr(benchdata, "make_estimator", _fast)
+    calls: list[tuple[int, int]] = []
+    result = bench_data(paths, specs, progress=lambda done, total: calls.append((done, total)))
+    assert calls[-1] == (len(paths) * len(specs),) * 2
+    out = json.loads(json.dumps(result.as_json()))
+    assert [(r["trial"], r["filter"]) for r in out["trials"]] == [(p.stem, s) for p in paths for s in specs]
+    for row in out["trials"]:
+        for key in benchdata.METRICS:
+            assert math.isfinite(row[key]) and 0.0 <= row[key] < 90.0, row
+        assert row["inclination_deg"] <= row["total_deg"] + 1e-9
+        assert row["heading_deg"] <= row["total_deg"] + 1e-9
+    assert set(out["median"]) == set(specs)
+    assert all(math.isfinite(v) for m in out["median"].values() for v in m.values())
+    text = result.table()
+    assert all(f"{p.stem}: RMSE in deg" in text for p in paths)
+    if "vqf" not in specs:
+        pytest.skip("vqf adapter not in the registry (pip install 'windahrs[baselines]'); mekf checked")
+
+
+def test_sample_ulg_mekf_tilt_against_ekf2() -> None:
+    flight = read_flight(require_data("px4", "sample.ulg"))
+    assert flight.reference is not None and flight.reference.kind == "autopilot"
+    tilt = score(_fast("mekf").run(flight), flight).rmse_tilt_deg
+    # Issue acceptance: at most 0.5 deg RMS. Measured 0.42 deg; a constant 0.39 deg
+    # rotation between [mekf] and EKF2 (estimate_alignment) makes up most of it.
+    assert tilt <= 0.5, f"[mekf] tilt RMS against EKF2: {tilt:.3f} deg"
+
+
+# ALFA's raw IMU is a 10 Hz stream of point samples (mavros imu/data_raw), not increments
+# integrated over the interval as the defaults assume for a >= 100 Hz IMU. Holding a
+# sample over dt = 0.1 s leaves an integration error of about sigma_d * dt / sqrt(3) per
+# step, sigma_d the sample-to-sample change: for a manoeuvring small fixed wing about
+# 1 rad/s^2 * 0.1 s in rate and 1 m/s^2 in specific force. As noise densities (per
+# sqrt(s)) that is 0.1 * 0.1 / sqrt(3) / sqrt(0.1) ~ 0.02 rad/s/sqrt(Hz) ~ 1 deg/s/sqrt(Hz)
+# for the gyro and 1 * 0.1 / sqrt(3) / sqrt(0.1) ~ 0.2 m/s^2/sqrt(Hz) for the
+# accelerometer (the INS input). The defaults (0.01 deg/s/sqrt(Hz), 0.02 m/s^2/sqrt(Hz))
+# make [ins-wind] and [mekf-air] diverge on this sequence.
+ALFA_SPECS = ("ins-wind:gyro_noise=0.0175:accel_noise=0.2", "mekf-air:gyro_noise=0.0175")
+# ArduPilot's wind estimate is still settling at the start of the recording: its 10 s means
+# move from (-5.6, -2.5) m/s N/E at 0-10 s to (-2.5, 0.2) at 40 s, while the wind triangle
+# from the autopilot's own attitude, airspeed and GNSS stays near (-1.5, 0.5). Compare from
+# 30 s, once both estimates have settled, to the failure.
+ALFA_FROM_S = 30.0
+
+
+def _wind_summary(t: np.ndarray, wind_n: np.ndarray, t0: float, t1: float) -> tuple[float, float]:
+    """(direction of the mean horizontal wind in rad, mean horizontal speed in m/s)."""
+    w = wind_n[(t >= t0) & (t < t1), :2]
+    mean = w.mean(axis=0)
+    return math.atan2(mean[1], mean[0]), float(np.linalg.norm(w, axis=1).mean())
+
+
+@pytest.mark.parametrize("spec", ALFA_SPECS)
+def test_alfa_wind_against_the_autopilot(spec: str) -> None:
+    flight = read_flight(require_data("alfa", ALFA_SEQUENCE))
+    assert flight.ref_wind is not None and "failure_time" in flight.meta
+    t_fail = float(flight.meta["failure_time"])
+    est = make_estimator(spec).run(flight)
+    assert est.wind_n is not None
+    d_est, s_est = _wind_summary(est.t, est.wind_n, ALFA_FROM_S, t_fail)
+    d_ref, s_ref = _wind_summary(flight.ref_wind.t, flight.ref_wind.wind_n, ALFA_FROM_S, t_fail)
+    d_err = math.degrees((d_est - d_ref + math.pi) % (2 * math.pi) - math.pi)
+    assert abs(d_err) <= 30.0, f"{spec}: mean wind direction off by {d_err:.1f} deg"
+    assert abs(s_est - s_ref) <= 1.5, f"{spec}: mean wind speed {s_est:.2f} vs {s_ref:.2f} m/s"
+
