@@ -129,6 +129,30 @@ def _bound_fn() -> Callable[[Sequence[Flight], str], NDArray[np.float64] | None]
     return reproduction_bound
 
 
+def _cmd_bench_data(args: argparse.Namespace) -> int:
+    import json
+
+    from windahrs.experiments.benchdata import bench_data, discover_trials
+
+    specs = [s.strip() for s in args.filters.split(",") if s.strip()]
+    paths = discover_trials(args.dir) if args.dir.is_dir() else [args.dir]
+    with tqdm(total=len(paths) * len(specs), desc="bench-data", unit="run", disable=None, file=sys.stderr) as bar:
+
+        def step(done: int, total: int) -> None:
+            bar.update(done - bar.n)
+
+        res = bench_data(paths, specs, progress=step)
+    text = json.dumps(res.as_json(), indent=1)
+    table = res.table()
+    if args.out is not None:
+        from windahrs.store import atomic_path
+
+        with atomic_path(args.out) as tmp:
+            tmp.write_text(text if args.out.suffix == ".json" else table)
+    print(text if args.json else table)
+    return 0
+
+
 def _cmd_filters(args: argparse.Namespace) -> int:
     from windahrs.filters.registry import REGISTRY, names
 
@@ -337,6 +361,20 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds per run (default 20)")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     r.set_defaults(func=_cmd_reproduce)
+
+    b = sub.add_parser(
+        "bench-data",
+        help="every estimator over every BROAD-style trial: total, inclination, heading RMSE",
+        description="Run estimators over every recording in DIR (BROAD *.hdf5 trials, or any file the "
+        "readers know) and score them as BROAD does: heading offset removed for heading-free references, "
+        "total, inclination and heading RMSE per trial, and the median over trials.",
+    )
+    b.add_argument("dir", type=Path, metavar="DIR", help="a directory of trials (or one recording)")
+    b.add_argument("--filters", default="mekf,ekf7,vqf,vqf-offline,madgwick,mahony,imufusion",
+                   metavar="A,B,...", help="estimator specs (estimators that cannot run on a trial fail it)")
+    b.add_argument("--json", action="store_true", help="print the JSON result instead of the table")
+    b.add_argument("--out", type=Path, default=None, metavar="FILE", help="also write .json or a text table")
+    b.set_defaults(func=_cmd_bench_data)
 
     fl = sub.add_parser("filters", help="list the estimators", description="List the registered estimators.")
     fl.set_defaults(func=_cmd_filters)
