@@ -96,7 +96,10 @@ def _estimator(c: Case) -> Any:
         from windahrs.filters.params import matched_to
         from windahrs.sim.scenario import default_sensors
 
-        return type(est)(matched_to(default_sensors(PaperScenario()), est.params))
+        matched = matched_to(default_sensors(PaperScenario()), est.params)
+        # The accelerometer's R of the gravity filters must cover the gusts' unmodelled
+        # acceleration, not only the datasheet noise: keep the field allowance.
+        return type(est)(matched.replace(accel_sigma=est.params.accel_sigma))
     return est
 
 
