@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import dom_images, render_in_chromium, require_chromium
 
+from browser import dom_images, render_in_chromium, require_chromium
 from windahrs.cli import main
 from windahrs.report.html import format_cell
 
