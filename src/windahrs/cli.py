@@ -394,6 +394,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, FlightError, StoreError, ValueError, FileNotFoundError) as exc:
         print(f"windahrs {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # Output piped into e.g. `head`: stop quietly, as Unix tools do.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print(f"windahrs {args.command}: interrupted; nothing was written", file=sys.stderr)
         return 130
