@@ -1157,19 +1157,27 @@ def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
             for j in range(d):
                 out_cov[k, i, j] = np.nan
         return
-    for a in range(4):
-        out_q[k, a] = x[X_Q + a]
-    for a in range(3):
-        out_bg[k, a] = x[X_BG + a]
-        if iv >= 0:
-            out_v[k, a] = x[X_V + a]
-        if iw >= 0:
-            out_w[k, a] = x[X_W + a]
+    # (the covariance first, then the vectors, loaded before they are stored: measurably
+    # faster code)
     if cfg[C_ADD] == 0:
         for i in range(d):
             for j in range(d):
                 out_cov[k, i, j] = P[i, j]
-        return
+    else:
+        _record_tangent_cov(cfg, x, P, work, k, out_cov)
+    q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    b0, b1, b2 = x[X_BG], x[X_BG + 1], x[X_BG + 2]
+    out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q0, q1, q2, q3
+    out_bg[k, 0], out_bg[k, 1], out_bg[k, 2] = b0, b1, b2
+    if iv >= 0:
+        out_v[k, 0], out_v[k, 1], out_v[k, 2] = x[X_V], x[X_V + 1], x[X_V + 2]
+    if iw >= 0:
+        out_w[k, 0], out_w[k, 1], out_w[k, 2] = x[X_W], x[X_W + 1], x[X_W + 2]
+
+
+@njit(**_JIT)
+def _record_tangent_cov(cfg, x, P, work, k, out_cov):
+    """Ekf7Streamer._tangent_cov into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)."""
     Xi = work[W_M + 4 : W_M + 8]
     _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
     n = cfg[C_N]
