@@ -61,7 +61,7 @@ def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
     has = frozenset(s for s in ("imu", "mag", "gnss", "air") if getattr(flight, s) is not None) & est.uses
     t_ev, kinds, vals = merge_events(flight, has)
     caps = np.full(6, len(t_ev), dtype=np.int64)
-    L = C.layout_of(est.kind, est.params)
+    L = C.layout_of(est.kind, est.params, est.additive)
     N, d = len(flight.imu.t), L.dim
     out = {}
     for rec in (True, False):

@@ -151,6 +151,10 @@ VARIANTS = [
     ("ins-wind", EskfParams(air_mode="airspeed", synthetic_sideslip=False, gate_air=1.0, mag_mode="off")),
     ("mekf-air", EskfParams(accel_compensation="airspeed", air_mode="airspeed", gate_air=2.0)),
     ("ekf10", EskfParams(accel_compensation="airspeed", mag_mode="off", gate_air=1.5)),
+    # magnetometer-bias states (the additive ekf7 carries none)
+    ("mekf", EskfParams(init_mag_bias=1e-6)),
+    ("mekf-air", EskfParams(accel_compensation="airspeed", init_mag_bias=2e-6, mag_bias_noise=1e-7)),
+    ("ekf7", EskfParams(init_mag_bias=1e-6)),
 ]
 
 
@@ -196,3 +200,10 @@ def test_fast_classes_keep_the_reference_identity() -> None:
             ref_cls.uses,
         )
         assert fast_cls().params == ref_cls().params
+
+
+def test_estimates_are_labelled_with_the_registry_spec() -> None:
+    from windahrs.filters.registry import make_estimator
+
+    spec = "mekf:mag_mode=heading"
+    assert make_estimator(spec).run(flight("nan")).filter == spec

@@ -25,7 +25,7 @@ from windahrs.sim.fixedwing import FixedWingScenario
 from windahrs.sim.scenario import make_scenario, simulate
 from windahrs.sim.sensors import AccelModel, MagModel, SensorSuite
 
-FULL = Layout(("att", "v", "bg", "wind", "ba"))
+FULL = Layout(("att", "v", "bg", "wind", "ba", "bm"))
 
 
 def random_state(rng: np.random.Generator) -> NominalState:
@@ -36,6 +36,7 @@ def random_state(rng: np.random.Generator) -> NominalState:
         v_n=rng.normal(size=3) * 10 + [15, 0, 0],
         wind_n=rng.normal(size=3) * 3,
         ba=rng.normal(size=3) * 0.05,
+        bm=rng.normal(size=3) * 1e-6,
     )
 
 
@@ -43,7 +44,7 @@ def boxminus(layout: Layout, a: NominalState, b: NominalState) -> np.ndarray:
     """Error-state difference a - b in the layout's coordinates."""
     dx = np.zeros(layout.dim)
     dx[layout.sl("att")] = quat_log(quat_mul(quat_conj(b.q_nb), a.q_nb))
-    for name, attr in (("bg", "bg"), ("v", "v_n"), ("wind", "wind_n"), ("ba", "ba")):
+    for name, attr in (("bg", "bg"), ("v", "v_n"), ("wind", "wind_n"), ("ba", "ba"), ("bm", "bm")):
         if layout.has(name):
             dx[layout.sl(name)] = getattr(a, attr) - getattr(b, attr)
     return dx
@@ -76,7 +77,8 @@ def test_measurement_jacobians_match_finite_differences(layout: Layout) -> None:
         v_in = rng.normal(size=3) * 5 + [15, 0, 0]
         models = {
             "gravity": lambda s: obs.specific_force(layout, s, g, rng_a),
-            "mag": lambda s: obs.vector_body(layout, s, m),
+            "mag": lambda s: obs.magnetometer(layout, s, m),
+            "vector": lambda s: obs.vector_body(layout, s, m),
             "air": lambda s: obs.air_velocity(layout, s, v_in),
             "tas": lambda s: obs.airspeed(layout, s, v_in),
             "sideslip": lambda s: obs.sideslip(layout, s, v_in),
@@ -105,7 +107,9 @@ def test_airspeed_carries_no_attitude_information() -> None:
 
 def test_process_transition_matches_finite_differences() -> None:
     rng = np.random.default_rng(3)
-    noise = ProcessNoise(gyro=1e-4, gyro_bias=1e-5, accel=1e-3, wind_h=0.1, wind_v=0.1, accel_bias=1e-4)
+    noise = ProcessNoise(
+        gyro=1e-4, gyro_bias=1e-5, accel=1e-3, wind_h=0.1, wind_v=0.1, accel_bias=1e-4, mag_bias=1e-8
+    )
     g = np.array([0.0, 0.0, 9.80665])
     for dt, w_scale in ((0.005, 1.0), (0.05, 3.0), (0.005, 1e-9)):
         x = random_state(rng)

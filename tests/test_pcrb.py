@@ -222,7 +222,7 @@ def ins_bounds() -> dict[str, object]:
 
 def test_ins_bound_does_not_depend_on_the_wind(ins_bounds) -> None:
     calm, steady, gusty = ins_bounds["calm"], ins_bounds["steady"], ins_bounds["gnss"]
-    assert gusty.labels == pcrb_layout("ins", accel_bias=True).labels()
+    assert gusty.labels == pcrb_layout("ins", accel_bias=True, mag_bias=True).labels()
     # Steady wind leaves rates and specific force unchanged: the same bound.
     assert np.allclose(steady.cov, calm.cov, rtol=1e-6, atol=0)
     # The wind itself never enters the model: replacing the true wind changes nothing.

@@ -69,9 +69,11 @@ class PcrbNoise:
     """The true sensor noise the bound assumes.
 
     Densities (continuous, per sqrt(Hz)): gyro rad/s; gyro_bias rad/s^2 (random walk);
-    accel m/s^2; accel_bias m/s^3 (random walk). Initial bias spreads (standard deviation
-    per axis): gyro_bias_init rad/s, accel_bias_init m/s^2. Per-sample standard deviations
-    per axis: mag tesla, gnss m/s, tas m/s, vane rad (angle of attack and sideslip).
+    accel m/s^2; accel_bias m/s^3 (random walk); mag_bias tesla/s (random walk). Initial
+    bias spreads (standard deviation per axis): gyro_bias_init rad/s, accel_bias_init
+    m/s^2, mag_bias_init tesla (the magnetometer's hard iron, a constant offset). Per-sample
+    standard deviations per axis: mag tesla, gnss m/s, tas m/s, vane rad (angle of attack
+    and sideslip).
     """
 
     gyro: float
@@ -80,6 +82,8 @@ class PcrbNoise:
     accel: float = 0.0
     accel_bias: float = 0.0
     accel_bias_init: float = 0.0
+    mag_bias: float = 0.0
+    mag_bias_init: float = 0.0
     mag: float = 0.0
     gnss: float = 0.0
     tas: float = 0.0
@@ -93,10 +97,10 @@ class PcrbNoise:
 
     @classmethod
     def from_suite(cls, suite: SensorSuite) -> PcrbNoise:
-        """The noise of a simulator SensorSuite (SPEC 5.4). Not carried over, because they
-        are not noise of the models the bound uses: the magnetometer hard iron (a constant
-        offset; the bound treats it as known, zero), the GNSS latency, the pitot scale
-        error. Absent sensors give 0."""
+        """The noise of a simulator SensorSuite (SPEC 5.4); the magnetometer hard iron is
+        an unknown constant bias of known spread. Not carried over, because they are not
+        noise of the models the bound uses: the GNSS latency, the pitot scale error.
+        Absent sensors give 0."""
         return cls(
             gyro=suite.gyro.noise_density,
             gyro_bias=suite.gyro.bias_rw,
@@ -104,6 +108,7 @@ class PcrbNoise:
             accel=suite.accel.noise_density,
             accel_bias=suite.accel.bias_rw,
             accel_bias_init=suite.accel.bias_init_sigma,
+            mag_bias_init=0.0 if suite.mag is None else suite.mag.hard_iron,
             mag=0.0 if suite.mag is None else suite.mag.noise,
             gnss=0.0 if suite.gnss is None else suite.gnss.noise,
             tas=0.0 if suite.pitot is None else suite.pitot.noise,
@@ -113,6 +118,10 @@ class PcrbNoise:
     @property
     def has_accel_bias(self) -> bool:
         return self.accel_bias > 0 or self.accel_bias_init > 0
+
+    @property
+    def has_mag_bias(self) -> bool:
+        return self.mag_bias > 0 or self.mag_bias_init > 0
 
 
 # --- result -------------------------------------------------------------------------------
@@ -255,9 +264,12 @@ def pcrb_recursion(
 # --- along a flight -----------------------------------------------------------------------
 
 
-def pcrb_layout(model: PcrbModel, *, air: bool = False, accel_bias: bool = False) -> Layout:
+def pcrb_layout(
+    model: PcrbModel, *, air: bool = False, accel_bias: bool = False, mag_bias: bool = False
+) -> Layout:
     """Error-state layout of the bound: "gravity" [att, bg] (+ ba), "ins" [att, v, bg]
-    (+ wind with air data) (+ ba); the order of the filters in :mod:`windahrs.filters.eskf`."""
+    (+ wind with air data) (+ ba), then (+ bm); the order of the filters in
+    :mod:`windahrs.filters.eskf`."""
     if model not in MODELS:
         raise ValueError(f"model: expected one of {MODELS}, found {model!r}")
     blocks = ["att", "bg"] if model == "gravity" else ["att", "v", "bg"]
@@ -267,6 +279,8 @@ def pcrb_layout(model: PcrbModel, *, air: bool = False, accel_bias: bool = False
         blocks.append("wind")
     if accel_bias:
         blocks.append("ba")
+    if mag_bias:
+        blocks.append("bm")
     return Layout(tuple(blocks))
 
 
@@ -315,6 +329,8 @@ def pcrb(
     gnss: bool | None = None,
     air: bool = False,
     accel_bias: bool | None = None,
+    mag_bias: bool | None = None,
+    sigma_mag_bias: float | None = None,
     wind_noise: float = 0.5,
     wind_noise_vertical: float = 0.3,
 ) -> PcrbResult:
@@ -339,9 +355,10 @@ def pcrb(
     anyway). It is the physical limit of IMU + GNSS + magnetometer (SPEC 6.2).
 
     Accelerometer bias: ``accel_bias`` None adds ba states when the noise has a bias
-    (random walk or initial spread), True/False forces it. The magnetometer hard iron is
-    not modelled (treated as known): with hard iron in the simulation the bound is
-    optimistic (still a lower bound, but not attainable).
+    (random walk or initial spread), True/False forces it. Magnetometer bias (hard iron):
+    ``mag_bias`` None adds bm states when the magnetometer is used and the noise has a
+    bias, True/False forces it (False treats the hard iron as known: an optimistic bound
+    when the simulation has one).
 
     air (model "ins" only): adds the air-data rows (pitot and vanes: the air-relative
     velocity ``C_bn (v_n - wind_n)`` with R = J diag(tas^2, vane^2, vane^2) J^T at the true
@@ -359,7 +376,8 @@ def pcrb(
 
     Prior: ``P0`` (n, n) in the layout's order (:func:`pcrb_layout`), or diagonal from
     sigma_att rad, sigma_bias rad/s (default ``gyro_bias_init``), sigma_v m/s,
-    sigma_wind m/s, sigma_accel_bias m/s^2 (default ``accel_bias_init``). Zero spreads are
+    sigma_wind m/s, sigma_accel_bias m/s^2 (default ``accel_bias_init``),
+    sigma_mag_bias tesla (default ``mag_bias_init``). Zero spreads are
     allowed (a state known exactly).
     """
     if model not in MODELS:
@@ -398,7 +416,10 @@ def pcrb(
         if truth.wind_n is None:
             raise ValueError("flight.truth.wind_n: expected the true wind to use air data, found None")
     use_ba = noise.has_accel_bias if accel_bias is None else bool(accel_bias)
-    layout = pcrb_layout(model, air=use_air, accel_bias=use_ba)
+    use_bm = (noise.has_mag_bias if mag_bias is None else bool(mag_bias)) and use_mag
+    if mag_bias and not use_mag:
+        raise ValueError("mag_bias: expected False or None without the magnetometer")
+    layout = pcrb_layout(model, air=use_air, accel_bias=use_ba, mag_bias=use_bm)
 
     g_n = flight.site.gravity_n
     w_b, f_b, a_n = _truth_motion(truth, g_n)
@@ -410,7 +431,8 @@ def pcrb(
     if P0 is None:
         s_bg = noise.gyro_bias_init if sigma_bias is None else sigma_bias
         s_ba = noise.accel_bias_init if sigma_accel_bias is None else sigma_accel_bias
-        spreads = {"att": sigma_att, "v": sigma_v, "bg": s_bg, "wind": sigma_wind, "ba": s_ba}
+        s_bm = noise.mag_bias_init if sigma_mag_bias is None else sigma_mag_bias
+        spreads = {"att": sigma_att, "v": sigma_v, "bg": s_bg, "wind": sigma_wind, "ba": s_ba, "bm": s_bm}
         d = np.zeros(layout.dim)
         for b in layout.blocks:
             s = spreads[b]
@@ -440,6 +462,7 @@ def pcrb(
             v_n=None if truth.v_n is None or not layout.has("v") else truth.v_n[k],
             wind_n=truth.wind_n[k] if layout.has("wind") and truth.wind_n is not None else None,
             ba=zeros3 if layout.has("ba") else None,
+            bm=zeros3 if layout.has("bm") else None,
         )
 
     def attach(stream: str, t_s: F64, ok: ArrayLike, make: Callable[[int, int], tuple[F64, F64]]) -> None:
@@ -466,7 +489,7 @@ def pcrb(
             )
         r_mag = noise.mag**2 * np.eye(3)
         ok = np.isfinite(flight.mag.mag_b).all(axis=1)
-        attach("mag", flight.mag.t, ok, lambda k, j: (obs.vector_body(layout, state(k), mag_n)[1], r_mag))
+        attach("mag", flight.mag.t, ok, lambda k, j: (obs.magnetometer(layout, state(k), mag_n)[1], r_mag))
         sensors_used.append("mag")
     if use_gnss:
         assert flight.gnss is not None
@@ -516,6 +539,7 @@ def pcrb(
         wind_h=wind_noise,
         wind_v=wind_noise_vertical,
         accel_bias=noise.accel_bias,
+        mag_bias=noise.mag_bias,
     )
     f_in = f_b if f_b is not None else np.zeros((len(t), 3))
     dts = np.diff(t)
@@ -640,7 +664,8 @@ def reproduction_bound(flights: Sequence[Flight], model: str) -> F64 | None:
     """Body-axis attitude bound std (N, 3) in deg for ``windahrs reproduce``: the PCRB of
     the default sensor suite of the flights' scenario averaged over the Monte Carlo truths,
     with the filters' initial uncertainty (10 deg attitude, the datasheet's gyro-bias
-    spread). "ins": IMU + GNSS velocity + magnetometer, no air data (the wind-free physical
+    spread) and the suite's unknown constant biases (accelerometer, magnetometer hard
+    iron) as states. "ins": IMU + GNSS velocity + magnetometer, no air data (the wind-free physical
     limit of the sensor set, SPEC 6.2); "gravity": IMU + magnetometer with the accelerometer
     as a gravity measurement (exact only without linear acceleration, so filters of that
     kind are measured against a bound their model cannot reach in gusts)."""

@@ -55,7 +55,7 @@ from windahrs.filters.base import (
     merge_events,
 )
 from windahrs.filters.ekf7 import Ekf7, Ekf10
-from windahrs.filters.eskf import InsWind, Kind, Mekf, MekfAir, _EskfEstimator
+from windahrs.filters.eskf import InsWind, Kind, Mekf, MekfAir, _EskfEstimator, layout_for
 from windahrs.filters.params import EskfParams
 from windahrs.flight import Flight, Site
 from windahrs.models.error_state import Layout
@@ -88,9 +88,9 @@ _JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 #: products and sums.
 _JIT_FMA: dict[str, Any] = {**_JIT, "fastmath": {"contract"}}
 
-#: Width of the scratch rows: the largest covariance (ins-wind with accelerometer bias:
-#: 15; ekf10: 10) plus one.
-NMAX = 16
+#: Width of the scratch rows: the largest covariance (ins-wind with accelerometer and
+#: magnetometer bias: 18; ekf10: 10) plus one.
+NMAX = 19
 
 KIND_MEKF, KIND_MEKF_AIR, KIND_INS = 0, 1, 2
 COMP_NONE, COMP_GNSS, COMP_AIRSPEED = 0, 1, 2
@@ -123,7 +123,8 @@ C_DIM = 17  # error-state dimension
 C_N = 18  # covariance dimension (additive: DIM + 1)
 C_OFF = 19  # (6,) first row of each sensor's log
 C_CAP = 25  # (6,) rows of each sensor's log
-N_CFG = 31
+C_IBM = 31  # ... magnetometer bias (-1: none)
+N_CFG = 32
 
 # prm: parameters (float64), fixed for a run; squared in Python as the reference does.
 R_SG2 = 0  # gyro noise density^2
@@ -155,7 +156,9 @@ R_INI_Q = 27  # (4,)
 R_INI_BG = 31  # (3,)
 R_INI_V = 34  # (3,)
 R_INI_W = 37  # (3,)
-N_PRM = 40
+R_P0_BM = 40
+R_SBM2 = 41  # magnetometer bias noise^2
+N_PRM = 42
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -172,7 +175,8 @@ X_FMAG = 31  # first magnetometer sample (before initialisation)
 X_FV = 34  # first GNSS velocity (before initialisation)
 X_TIMU = 37
 X_TGNSS = 38
-N_X = 40
+X_BM = 40  # (3,) magnetometer bias
+N_X = 43
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -400,6 +404,7 @@ def _try_init(cfg, prm, x, flags, P, work):
         if iw >= 0:
             x[X_W + a] = prm[R_INI_W + a] if cfg[C_INI_W] == 1 else 0.0
         x[X_BA + a] = 0.0
+        x[X_BM + a] = 0.0
     for i in range(NMAX):
         for j in range(NMAX):
             P[i, j] = 0.0
@@ -412,6 +417,8 @@ def _try_init(cfg, prm, x, flags, P, work):
             P[iw + off + a, iw + off + a] = prm[R_P0_W]
         if iba >= 0:
             P[iba + off + a, iba + off + a] = prm[R_P0_BA]
+        if cfg[C_IBM] >= 0:
+            P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm[R_P0_BM]
     if cfg[C_ADD] == 1:
         # quat_cov_from_att_cov: 1/4 Xi P_att Xi^T with P_att = var I
         Xi = work[W_M + 4 : W_M + 8]
@@ -595,6 +602,8 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             P[iv + k, iv + k] += prm[R_SA2] * dt
         if iba >= 0:
             P[iba + k, iba + k] += prm[R_SBA2] * dt
+        if cfg[C_IBM] >= 0:
+            P[cfg[C_IBM] + k, cfg[C_IBM] + k] += prm[R_SBM2] * dt
     if iw >= 0:
         P[iw, iw] += prm[R_WH2] * dt
         P[iw + 1, iw + 1] += prm[R_WH2] * dt
@@ -877,6 +886,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 x[X_W + a] += dx[iw + a]
             if iba >= 0:
                 x[X_BA + a] += dx[iba + a]
+            if cfg[C_IBM] >= 0:
+                x[X_BM + a] += dx[cfg[C_IBM] + a]
     return True
 
 
@@ -975,8 +986,18 @@ def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         y1 = c[1] * rx + c[4] * ry + c[7] * rz
         y2 = c[2] * rx + c[5] * ry + c[8] * rz
         _vector_rows(work, sup[0], y0, y1, y2, prm[R_MAG_VAR])
-        nu[0], nu[1], nu[2] = mx - y0, my - y1, mz - y2
-        sensor, m, ns = np.int64(INN_MAG), np.int64(3), np.int64(3)
+        nsup = 3
+        h0, h1, h2 = y0, y1, y2
+        ibm = cfg[C_IBM]
+        if ibm >= 0:  # + bm, H_bm = I
+            h0, h1, h2 = y0 + x[X_BM], y1 + x[X_BM + 1], y2 + x[X_BM + 2]
+            for k in range(3):
+                for a in range(3):
+                    work[W_H + k, ibm + a] = 1.0 if k == a else 0.0
+                sup[0, 3 + k] = ibm + k
+            nsup = 6
+        nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
+        sensor, m, ns = np.int64(INN_MAG), np.int64(3), np.int64(nsup)
         _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
         return
     # heading only: tilt-compensate with the current roll/pitch estimate
@@ -1258,16 +1279,13 @@ _AIR = {"auto": AIR_AUTO, "vector": AIR_VECTOR, "airspeed": AIR_AIRSPEED, "off":
 _STREAMS = ("imu", "mag", "gnss", "air")
 
 
-def layout_of(kind: Kind, params: EskfParams) -> Layout:
-    """The error-state layout of EskfStreamer for ``kind`` and ``params``."""
-    blocks = ["att", "bg"]
-    if kind == "ins-wind":
-        blocks.insert(1, "v")
-    if kind in ("mekf-air", "ins-wind"):
-        blocks.append("wind")
-    if kind == "ins-wind" and params.accel_bias_noise > 0:
-        blocks.append("ba")
-    return Layout(tuple(blocks))
+def layout_of(kind: Kind, params: EskfParams, additive: bool = False) -> Layout:
+    """The error-state layout of the compiled filter: :func:`eskf.layout_for`, checked
+    against what the kernels assume (attitude at 0, velocity at 3)."""
+    L = layout_for(kind, params, additive=additive)
+    if L.sl("att").start != 0 or (L.has("v") and L.sl("v").start != 3) or L.dim + int(additive) >= NMAX:
+        raise AssertionError(f"compiled kernels cannot run the layout {L.blocks}")
+    return L
 
 
 def _vec(a: Any, n: int, name: str) -> F64:
@@ -1296,9 +1314,7 @@ def make_state(
     or "ins-wind"; additive: the quaternion-additive form (ekf7/ekf10); has: the streams
     that will be fed; caps (6,): innovation log rows per sensor (SENSORS order)."""
     p, ini = params, initial
-    L = layout_of(kind, p)
-    if L.sl("att").start != 0 or (L.has("v") and L.sl("v").start != 3):
-        raise AssertionError("compiled kernels assume att at 0 and v at 3")  # layout_of guarantees it
+    L = layout_of(kind, p, additive)
     dim = L.dim
     n = dim + 1 if additive else dim
     cfg = np.zeros(N_CFG, dtype=np.int64)
@@ -1319,6 +1335,7 @@ def make_state(
     cfg[C_IBG] = L.sl("bg").start
     cfg[C_IW] = L.sl("wind").start if L.has("wind") else -1
     cfg[C_IBA] = L.sl("ba").start if L.has("ba") else -1
+    cfg[C_IBM] = L.sl("bm").start if L.has("bm") else -1
     cfg[C_DIM] = dim
     cfg[C_N] = n
     total = _log_layout(cfg, np.asarray(caps, dtype=np.int64))
@@ -1351,6 +1368,8 @@ def make_state(
     prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
     prm[R_P0_W] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2
     prm[R_P0_BA] = p.init_accel_bias**2
+    prm[R_P0_BM] = p.init_mag_bias**2
+    prm[R_SBM2] = p.mag_bias_noise**2
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -1434,7 +1453,7 @@ class CompiledStreamer(Streamer):
         super().__init__(name)
         self.kind = kind
         self.params = params
-        self.layout = layout_of(kind, params)
+        self.layout = layout_of(kind, params, additive)
         self._st = make_state(kind, additive, params, site, initial, has, np.full(6, 256, dtype=np.int64))
         # one event at a time through the batch loop, without recording
         self._t = np.zeros(1)
@@ -1509,7 +1528,7 @@ class _Compiled(_EskfEstimator):
             dtype=np.int64,
         )
         st = make_state(self.kind, self.additive, self.params, flight.site, initial, has, caps)
-        L = layout_of(self.kind, self.params)
+        L = layout_of(self.kind, self.params, self.additive)
         N, d = len(flight.imu.t), L.dim
         q, bg = np.empty((N, 4)), np.empty((N, 3))
         v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
@@ -1518,7 +1537,7 @@ class _Compiled(_EskfEstimator):
         run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
         skipped = st.flags[K_SKIP : K_SKIP + 4]
         return Estimate(
-            filter=self.name,
+            filter=self.label,
             t=flight.imu.t.copy(),
             q_nb=q,
             gyro_bias_b=bg,

@@ -42,6 +42,8 @@ class Ekf7Streamer(EskfStreamer):
     """The additive-quaternion EKF fed sample by sample: covariance on ``[q (4), rest]``
     where "rest" are the error-state blocks after the attitude (bias, wind)."""
 
+    additive = True
+
     def __init__(
         self,
         name: str,

@@ -12,12 +12,16 @@ Three estimators share one core:
   optionally accelerometer bias); fuses GNSS velocity, magnetometer and air data. The
   recommended estimator.
 
+Each may carry magnetometer-bias (hard-iron) states with a 3-D magnetometer
+(``init_mag_bias > 0``; the [ins-wind] default).
+
 The compiled twins live in :mod:`windahrs.filters.compiled` and are tested equal to this
 code sample by sample.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -30,7 +34,7 @@ from windahrs.models import observations as obs
 from windahrs.models.error_state import Layout, NominalState, ProcessNoise, predict
 from windahrs.rotation import air_direction, dcm_from_quat, euler_from_quat, quat_from_euler
 
-__all__ = ["EskfStreamer", "InsWind", "Mekf", "MekfAir"]
+__all__ = ["EskfStreamer", "InsWind", "Mekf", "MekfAir", "layout_for"]
 
 F64 = NDArray[np.float64]
 Kind = Literal["mekf", "mekf-air", "ins-wind"]
@@ -45,8 +49,29 @@ def mag_reference(site: Site, q_nb: F64, mag_b: F64) -> F64:
     return np.array([np.hypot(m[0], m[1]), 0.0, m[2]])
 
 
+def layout_for(kind: Kind, params: EskfParams, *, additive: bool = False) -> Layout:
+    """The error-state blocks of ``kind`` with ``params`` (the one rule, shared with the
+    compiled twins): [ins-wind] adds velocity and (accel_bias_noise > 0) accelerometer
+    bias; [mekf-air] and [ins-wind] wind; every kind a magnetometer bias when
+    ``init_mag_bias > 0`` with the 3-D magnetometer, except the quaternion-additive
+    filters (``additive``: [ekf7], [ekf10])."""
+    blocks = ["att", "bg"]
+    if kind == "ins-wind":
+        blocks.insert(1, "v")
+    if kind in ("mekf-air", "ins-wind"):
+        blocks.append("wind")
+    if kind == "ins-wind" and params.accel_bias_noise > 0:
+        blocks.append("ba")
+    if params.init_mag_bias > 0 and params.mag_mode == "3d" and not additive:
+        blocks.append("bm")
+    return Layout(tuple(blocks))
+
+
 class EskfStreamer(Streamer):
     """The shared error-state core, fed sample by sample."""
+
+    #: the quaternion-additive subclass ([ekf7], [ekf10]) sets this
+    additive: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -62,14 +87,7 @@ class EskfStreamer(Streamer):
         self.p = params
         self.site = site
         self.g_n = site.gravity_n
-        blocks = ["att", "bg"]
-        if kind == "ins-wind":
-            blocks.insert(1, "v")
-        if kind in ("mekf-air", "ins-wind"):
-            blocks.append("wind")
-        if kind == "ins-wind" and params.accel_bias_noise > 0:
-            blocks.append("ba")
-        self.layout = Layout(tuple(blocks))
+        self.layout = layout_for(kind, params, additive=self.additive)
         self.noise = ProcessNoise(
             gyro=params.gyro_noise,
             gyro_bias=params.gyro_bias_noise,
@@ -77,6 +95,7 @@ class EskfStreamer(Streamer):
             wind_h=params.wind_noise,
             wind_v=params.wind_noise_vertical,
             accel_bias=params.accel_bias_noise,
+            mag_bias=params.mag_bias_noise,
         )
         self.initial = initial
         self.wait_mag = "mag" in has and params.mag_mode != "off" and initial is None
@@ -115,7 +134,8 @@ class EskfStreamer(Streamer):
         if L.has("wind"):
             wind = np.zeros(3) if ini is None or ini.wind_n is None else np.asarray(ini.wind_n, float)
         ba = np.zeros(3) if L.has("ba") else None
-        self.x = NominalState(q_nb=q, bg=bg, v_n=v, wind_n=wind, ba=ba)
+        bm = np.zeros(3) if L.has("bm") else None
+        self.x = NominalState(q_nb=q, bg=bg, v_n=v, wind_n=wind, ba=ba, bm=bm)
 
         def sig(given: float | None, default: float) -> float:
             return default if given is None else given
@@ -129,6 +149,8 @@ class EskfStreamer(Streamer):
             d[L.sl("wind")] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2
         if L.has("ba"):
             d[L.sl("ba")] = p.init_accel_bias**2
+        if L.has("bm"):
+            d[L.sl("bm")] = p.init_mag_bias**2
         self.P = np.diag(d)
         if self._first_mag is not None or self.site.mag_n is not None:
             self.mag_n = mag_reference(
@@ -200,7 +222,7 @@ class EskfStreamer(Streamer):
         if self.mag_n is None:
             self.mag_n = mag_reference(self.site, self.x.q_nb, mag_b)
         if self.p.mag_mode == "3d":
-            h, H = obs.vector_body(self.layout, self.x, self.mag_n)
+            h, H = obs.magnetometer(self.layout, self.x, self.mag_n)
             self._fuse("mag", t, mag_b - h, H, self.p.mag_sigma**2 * np.eye(3), self.p.gate_mag)
             return
         # Heading only: tilt-compensate with the current roll/pitch estimate.
@@ -267,7 +289,7 @@ class EskfStreamer(Streamer):
         w = v - dcm_from_quat(self.x.q_nb) @ self.v_air_b
         if not vanes:
             w[2] = 0.0
-        self.x = NominalState(q_nb=self.x.q_nb, bg=self.x.bg, v_n=self.x.v_n, wind_n=w, ba=self.x.ba)
+        self.x = dataclasses.replace(self.x, wind_n=w)
         self._init_wind_pending = False
 
     @property
@@ -339,3 +361,4 @@ class InsWind(_EskfEstimator):
     kind = "ins-wind"
     requires = frozenset({"imu", "gnss"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
+    default_params = EskfParams(init_mag_bias=1e-6)

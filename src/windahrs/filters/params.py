@@ -51,7 +51,12 @@ class EskfParams:
     accel_norm_gate * g``; accel_compensation: "none", "gnss" (GNSS velocity differences)
     or "airspeed" (``w x V_air`` from pitot and vanes, SPEC 3.2.2).
 
-    Magnetometer: mag_mode "3d", "heading" (yaw only) or "off"; mag_sigma tesla per axis.
+    Magnetometer: mag_mode "3d", "heading" (yaw only) or "off"; mag_sigma tesla per axis
+    (noise only when the bias is a state, else noise plus residual hard iron);
+    init_mag_bias tesla, the spread of the residual hard iron after calibration (> 0 with
+    mag_mode "3d" adds magnetometer-bias states, as PX4's EKF2 and ArduPilot's EKF3 carry;
+    0: none); mag_bias_noise tesla/s/sqrt(Hz), its random walk. [ins-wind] carries the
+    states by default (1 uT, the AK8975 residual of SPEC 5.4), the other filters do not.
     GNSS velocity: gnss_sigma m/s per axis. Air data: air_mode "auto" (the vector when the
     flight has vanes, else airspeed and synthetic sideslip), "vector", "airspeed" or "off";
     tas_sigma m/s, vane_sigma rad, sideslip_sigma rad (synthetic zero sideslip;
@@ -90,6 +95,8 @@ class EskfParams:
     init_v: float = 1.0
     init_wind: float = 5.0
     init_accel_bias: float = 0.05
+    init_mag_bias: float = 0.0
+    mag_bias_noise: float = 1e-8
 
     def __post_init__(self) -> None:
         choices = {
@@ -130,6 +137,7 @@ PX4_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
     "EKF2_WIND_NSD": ("wind_noise", float),
     "EKF2_MAG_NOISE": ("mag_sigma", lambda v: v * 1e-4),  # gauss -> tesla
     "EKF2_MAG_GATE": ("gate_mag", float),
+    "EKF2_MAG_B_NOISE": ("mag_bias_noise", lambda v: v * 1e-4 * math.sqrt(_PX4_DT)),  # gauss/s
     "EKF2_GPS_V_NOISE": ("gnss_sigma", float),
     "EKF2_GPS_V_GATE": ("gate_gnss", float),
     "EKF2_EAS_NOISE": ("tas_sigma", float),
@@ -147,6 +155,7 @@ ARDUPILOT_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
     "EK3_WIND_P_NSE": ("wind_noise", float),
     "EK3_MAG_M_NSE": ("mag_sigma", lambda v: v * 1e-4),
     "EK3_MAG_I_GATE": ("gate_mag", lambda v: v / 100.0),
+    "EK3_MAGB_P_NSE": ("mag_bias_noise", lambda v: v * 1e-4 * math.sqrt(_AP_DT)),  # gauss/s
     "EK3_VELNE_M_NSE": ("gnss_sigma", float),
     "EK3_VEL_I_GATE": ("gate_gnss", lambda v: v / 100.0),
     "EK3_EAS_M_NSE": ("tas_sigma", float),
@@ -212,7 +221,13 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
     dt = 1.0 / suite.imu_rate
     ch["accel_sigma"] = max(suite.accel.noise_density / math.sqrt(dt), 1e-9)
     if suite.mag is not None:
-        ch["mag_sigma"] = max(math.hypot(suite.mag.noise, suite.mag.hard_iron), 1e-12)
+        if suite.mag.hard_iron == 0:
+            ch.update(mag_sigma=max(suite.mag.noise, 1e-12), init_mag_bias=0.0)
+        elif b.init_mag_bias > 0 and b.mag_mode == "3d":
+            # the hard iron is a state: a constant of known spread
+            ch.update(mag_sigma=max(suite.mag.noise, 1e-12), init_mag_bias=suite.mag.hard_iron, mag_bias_noise=0.0)
+        else:
+            ch["mag_sigma"] = max(math.hypot(suite.mag.noise, suite.mag.hard_iron), 1e-12)
     if suite.gnss is not None:
         ch["gnss_sigma"] = max(suite.gnss.noise, 1e-9)
     if suite.pitot is not None:

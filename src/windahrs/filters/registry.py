@@ -1,7 +1,8 @@
 """The registry: every estimator by name, for the CLI, benchmarks and experiments.
 
-The error-state filters and the additive EKFs resolve to their compiled (numba) twins,
-which are tested equal to the readable references in ``eskf.py`` and ``ekf7.py``.
+The error-state filters, the additive EKFs and USQUE resolve to their compiled (numba)
+twins, which are tested equal to the readable references in ``eskf.py``, ``ekf7.py`` and
+``usque.py``.
 
 Entries are imported lazily so that an outside library (ahrs, vqf, imufusion) is only
 needed when its adapter is used.
@@ -28,7 +29,11 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "mekf": ("windahrs.filters.compiled", "MekfFast", "error-state EKF, attitude + gyro bias"),
     "mekf-air": ("windahrs.filters.compiled", "MekfAirFast", "error-state EKF with wind states and air data"),
     "ins-wind": ("windahrs.filters.compiled", "InsWindFast", "error-state INS with wind states (recommended)"),
-    "usque": ("windahrs.filters.usque", "Usque", "error-state unscented filter (USQUE)"),
+    "usque": (
+        "windahrs.filters.compiled_usque",
+        "UsqueFast",
+        "error-state unscented filter (USQUE), GRP attitude error + gyro bias",
+    ),
     "ahrs-ekf": ("windahrs.baselines", "AhrsEkf", "ahrs package EKF"),
     "madgwick": ("windahrs.baselines", "Madgwick", "ahrs package Madgwick"),
     "mahony": ("windahrs.baselines", "Mahony", "ahrs package Mahony"),

@@ -1,16 +1,16 @@
 """Error-state process model shared by the MEKF, the air-data MEKF and the INS (SPEC 2.4, 2.5).
 
 Nominal state: attitude ``q_nb``, gyro bias ``bg``, and optionally velocity ``v_n`` (INS),
-wind ``wind_n`` and accelerometer bias ``ba``. Error state: body-frame attitude error
-``dtheta`` (``q = q_hat * Exp(dtheta)``) and additive errors of the rest, ordered by a
-:class:`Layout`.
+wind ``wind_n``, accelerometer bias ``ba`` and magnetometer bias ``bm`` (hard iron, tesla).
+Error state: body-frame attitude error ``dtheta`` (``q = q_hat * Exp(dtheta)``) and additive
+errors of the rest, ordered by a :class:`Layout`.
 
 Discrete model over one IMU step ``dt`` with gyro ``w_m`` and specific force ``f_m``
 (the sample at the *end* of the step, see docs/conventions.md)::
 
     q_k  = q_{k-1} * Exp((w_m - bg) dt)
     v_k  = v_{k-1} + (C_nb(q_k) (f_m - ba) + g_n) dt
-    bg, ba, wind: random walks
+    bg, ba, bm, wind: random walks
 
 Error transition (closed forms, SPEC 2.4; the velocity rows differentiate the update
 above exactly through ``dtheta_k = Phi11 dtheta_{k-1} + Phi12 dbg``)::
@@ -35,7 +35,7 @@ __all__ = ["BLOCK_SIZES", "Layout", "NominalState", "ProcessNoise", "attitude_tr
 
 F64 = NDArray[np.float64]
 
-BLOCK_SIZES = {"att": 3, "v": 3, "bg": 3, "wind": 3, "ba": 3}
+BLOCK_SIZES = {"att": 3, "v": 3, "bg": 3, "wind": 3, "ba": 3, "bm": 3}
 
 
 @dataclass(frozen=True)
@@ -75,19 +75,22 @@ class Layout:
             "v": ("v_n", "v_e", "v_d"),
             "wind": ("wind_n", "wind_e", "wind_d"),
             "ba": ("ba_x", "ba_y", "ba_z"),
+            "bm": ("bm_x", "bm_y", "bm_z"),
         }
         return tuple(lab for b in self.blocks for lab in names[b])
 
 
 @dataclass(frozen=True)
 class NominalState:
-    """q_nb (4,), bg (3,) rad/s, and when in the layout: v_n, wind_n (3,) m/s, ba (3,) m/s^2."""
+    """q_nb (4,), bg (3,) rad/s, and when in the layout: v_n, wind_n (3,) m/s, ba (3,) m/s^2,
+    bm (3,) tesla."""
 
     q_nb: F64
     bg: F64
     v_n: F64 | None = None
     wind_n: F64 | None = None
     ba: F64 | None = None
+    bm: F64 | None = None
 
     def inject(self, layout: Layout, dx: F64) -> NominalState:
         """Apply an error-state correction: ``q * Exp(dtheta)``, additive elsewhere."""
@@ -102,6 +105,7 @@ class NominalState:
             v_n=add("v", self.v_n),
             wind_n=add("wind", self.wind_n),
             ba=add("ba", self.ba),
+            bm=add("bm", self.bm),
         )
 
 
@@ -109,7 +113,7 @@ class NominalState:
 class ProcessNoise:
     """Continuous noise densities: gyro rad/s/sqrt(Hz), gyro bias rad/s^2/sqrt(Hz),
     accelerometer m/s^2/sqrt(Hz), horizontal and vertical wind m/s^2/sqrt(Hz),
-    accelerometer bias m/s^3/sqrt(Hz)."""
+    accelerometer bias m/s^3/sqrt(Hz), magnetometer bias tesla/s/sqrt(Hz)."""
 
     gyro: float
     gyro_bias: float
@@ -117,6 +121,7 @@ class ProcessNoise:
     wind_h: float = 0.0
     wind_v: float = 0.0
     accel_bias: float = 0.0
+    mag_bias: float = 0.0
 
 
 def attitude_transition(w: F64, dt: float) -> tuple[F64, F64]:
@@ -178,6 +183,9 @@ def predict(
     if layout.has("ba"):
         Ba = layout.sl("ba")
         Q[Ba, Ba] = noise.accel_bias**2 * dt * np.eye(3)
+    if layout.has("bm"):
+        Bm = layout.sl("bm")
+        Q[Bm, Bm] = noise.mag_bias**2 * dt * np.eye(3)
     P_new = Phi @ P @ Phi.T + Q
     P_new = 0.5 * (P_new + P_new.T)
-    return NominalState(q_nb=q, bg=x.bg, v_n=v_n, wind_n=x.wind_n, ba=x.ba), P_new
+    return NominalState(q_nb=q, bg=x.bg, v_n=v_n, wind_n=x.wind_n, ba=x.ba, bm=x.bm), P_new

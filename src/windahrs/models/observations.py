@@ -22,6 +22,7 @@ __all__ = [
     "air_velocity",
     "gnss_velocity",
     "heading",
+    "magnetometer",
     "sideslip",
     "specific_force",
     "vector_body",
@@ -40,6 +41,16 @@ def vector_body(layout: Layout, x: NominalState, r_n: F64) -> tuple[F64, F64]:
     H = _zeros(3, layout)
     H[:, layout.sl("att")] = skew(y)
     return y, H
+
+
+def magnetometer(layout: Layout, x: NominalState, mag_n: F64) -> tuple[F64, F64]:
+    """3-D magnetometer (SPEC 3.3) with the hard-iron bias when it is a state:
+    ``h = C_bn m_n (+ bm)``; ``H_att = [C_bn m_n]x``, ``H_bm = I``."""
+    h, H = vector_body(layout, x, mag_n)
+    if layout.has("bm") and x.bm is not None:
+        h = h + x.bm
+        H[:, layout.sl("bm")] = np.eye(3)
+    return h, H
 
 
 def specific_force(

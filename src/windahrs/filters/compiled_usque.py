@@ -1,0 +1,520 @@
+"""Compiled twin of [usque] (:mod:`windahrs.filters.usque`, SPEC 4.1): the unscented
+propagation and updates in numba nopython kernels, with no Python per sample. Tested equal
+to the reference sample by sample (tests/test_compiled_usque.py).
+
+Everything that [usque] shares with [mekf] is taken from :mod:`windahrs.filters.compiled`
+rather than written again: the :class:`~windahrs.filters.compiled.KernelState` (encoded by
+``make_state`` for an [att, bg] layout), initialisation (``_try_init``: InitialState or
+TRIAD, waiting for a magnetometer sample), the magnetometer reference, the scalar
+quaternion helpers, the 3x3 inverse, the innovation logs, the recording of states and
+covariance, and the streamer (:class:`~windahrs.filters.compiled.CompiledStreamer` with the
+step loop swapped). Only the unscented transforms are new here, and they follow the
+reference's order of operations; the results differ from it by rounding only (a scalar
+Cholesky and a cofactor inverse instead of LAPACK): about 1e-14 relative after a flight.
+
+The sigma points and their predictions live in scratch rows of the kernel's ``work``
+array (the U_* row offsets below), so nothing is allocated per sample (except in the
+eigen-square-root fallback, which runs only when rounding has made P indefinite).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from windahrs.estimate import Estimate
+from windahrs.filters.base import EVENT_IMU, EVENT_MAG, InitialState, merge_events
+from windahrs.filters.compiled import (
+    _JIT,
+    _STREAMS,
+    C_CAP,
+    C_MAG,
+    INN_ACCEL,
+    INN_MAG,
+    K_SKIP,
+    L_CNT,
+    MAG_3D,
+    MAG_OFF,
+    R_ACC_VAR,
+    R_GATE2_ACC,
+    R_GATE2_MAG,
+    R_GRAV,
+    R_MAG_SIGMA,
+    R_MAG_VAR,
+    R_NORM_GATE,
+    R_SB2,
+    R_SG2,
+    S_FLAST,
+    S_FMAG,
+    S_INIT,
+    S_MAGN,
+    X_BG,
+    X_FLAST,
+    X_FMAG,
+    X_MAGN,
+    X_Q,
+    X_TIMU,
+    CompiledStreamer,
+    KernelState,
+    _dcm9,
+    _euler,
+    _grow,
+    _innovations,
+    _inverse_small,
+    _log,
+    _qexp,
+    _qmul,
+    _qnormalize,
+    _quat_from_euler,
+    _set_mag_reference,
+    _try_init,
+    _wrap_pi,
+    layout_of,
+    make_state,
+    record,
+)
+from windahrs.filters.eskf import Kind
+from windahrs.filters.params import EskfParams
+from windahrs.filters.usque import GRP_A, GRP_F, USQUE_LAMBDA, Usque
+from windahrs.flight import Flight, Site
+from windahrs.rotation import quat_normalize
+
+__all__ = ["UsqueFast", "UsqueFastStreamer", "run_usque", "sqrt_cov"]
+
+F64 = NDArray[np.float64]
+
+_N = 6  # [dp, dbg]
+_NP = 2 * _N + 1  # sigma points
+_SPREAD = _N + USQUE_LAMBDA
+_W0 = USQUE_LAMBDA / (_N + USQUE_LAMBDA)  # usque.sigma_weights: centre ...
+_WI = 0.5 / (_N + USQUE_LAMBDA)  # ... and +- points
+_F2 = GRP_F * GRP_F
+
+# Scratch rows of KernelState.work (N_WORK = 66 rows of NMAX = 19 columns).
+U_S = 0  # (13, 6) sigma offsets [dp, db]
+U_Q = 13  # (13, 4) sigma-point quaternions
+U_Y = 26  # (13, 6) propagated errors X, or (13, m) predicted measurements Y
+U_L = 39  # (6, 6) square root of (n + lambda) P
+U_PYY = 45  # (3, 3) innovation covariance
+U_SI = 48  # (3, 3) its inverse
+U_PXY = 51  # (6, 3) cross covariance
+U_K = 57  # (6, 3) gain
+U_MEAN = 63  # mean of X or Y
+U_NU = 64  # innovation
+U_DX = 65  # correction [dp, db]
+
+_KERNEL_KIND: Kind = "mekf"  # the [att, bg] layout and initialisation of make_state / _try_init
+
+
+# --- generalised Rodrigues parameters (usque.quat_from_grp / grp_from_quat) -----------------
+
+
+@njit(**_JIT)
+def _dq_from_grp(p0, p1, p2):
+    s = p0 * p0 + p1 * p1 + p2 * p2
+    q0 = (_F2 - s) / (_F2 + s)
+    c = GRP_A + q0
+    return q0, c * p0 / GRP_F, c * p1 / GRP_F, c * p2 / GRP_F
+
+
+@njit(**_JIT)
+def _grp_from_dq(q0, q1, q2, q3):
+    sign = -1.0 if q0 < 0.0 else 1.0
+    d = GRP_A + sign * q0
+    return GRP_F * sign * q1 / d, GRP_F * sign * q2 / d, GRP_F * sign * q3 / d
+
+
+# --- sigma points -------------------------------------------------------------------------
+
+
+@njit(**_JIT)
+def sqrt_cov(P, spread, L):
+    """usque._sqrt_cov into L[:6, :6]: lower Cholesky factor of ``spread`` times the
+    symmetrised P; if rounding has left that indefinite, the eigen square root with negative
+    eigenvalues clipped to zero."""
+    h = spread * 0.5
+    for i in range(_N):
+        for j in range(_N):
+            L[i, j] = h * (P[i, j] + P[j, i])
+    ok = True
+    for j in range(_N):  # in place: L[i, j] (i >= j) still holds A[i, j] when first read
+        s = L[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:  # LAPACK's test (NaN included)
+            ok = False
+            break
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, _N):
+            v = L[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / d
+        for i in range(j):
+            L[i, j] = 0.0
+    if ok:
+        return
+    A = np.empty((_N, _N))
+    for i in range(_N):
+        for j in range(_N):
+            A[i, j] = h * (P[i, j] + P[j, i])
+    w, V = np.linalg.eigh(A)
+    for j in range(_N):
+        r = math.sqrt(max(w[j], 0.0))
+        for i in range(_N):
+            L[i, j] = V[i, j] * r
+
+
+@njit(**_JIT)
+def _sigma(x, P, work):
+    """UsqueStreamer._sigma: offsets S = 0, +-columns of sqrt((n + lambda) P) and the
+    point quaternions q_i = q * dq(S_i^p) (the biases are bg + S_i^b, formed by callers)."""
+    S, Q, L = work[U_S : U_S + _NP], work[U_Q : U_Q + _NP], work[U_L : U_L + _N]
+    sqrt_cov(P, _SPREAD, L)
+    for c in range(_N):
+        S[0, c] = 0.0
+        for i in range(_N):
+            v = L[c, i]  # column i of L
+            S[1 + i, c] = v
+            S[1 + _N + i, c] = -v
+    a0, a1, a2, a3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    for i in range(_NP):
+        d = _dq_from_grp(S[i, 0], S[i, 1], S[i, 2])
+        Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = _qmul(a0, a1, a2, a3, d[0], d[1], d[2], d[3])
+
+
+@njit(**_JIT)
+def _weighted_cov(D, n, C):
+    """C[:n, :n] = sum_i w_i D_i D_i^T over the 13 rows of D (exactly symmetric)."""
+    for r in range(n):
+        for c in range(r, n):
+            s = _W0 * D[0, r] * D[0, c]
+            for i in range(1, _NP):
+                s += _WI * D[i, r] * D[i, c]
+            C[r, c] = s
+            C[c, r] = s
+
+
+@njit(**_JIT)
+def _centre(Y, n, mean):
+    """mean[:n] = sum_i w_i Y_i; Y[:, :n] -= mean."""
+    for c in range(n):
+        s = _W0 * Y[0, c]
+        for i in range(1, _NP):
+            s += _WI * Y[i, c]
+        mean[c] = s
+        for i in range(_NP):
+            Y[i, c] -= s
+
+
+@njit(**_JIT)
+def _propagate(prm, x, P, work, w0, w1, w2, dt):
+    """UsqueStreamer._propagate (SPEC 4.1 steps 1-4)."""
+    _sigma(x, P, work)
+    S, Q, X = work[U_S : U_S + _NP], work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
+    mean = work[U_MEAN]
+    for i in range(_NP):
+        b0, b1, b2 = x[X_BG] + S[i, 3], x[X_BG + 1] + S[i, 4], x[X_BG + 2] + S[i, 5]
+        e = _qexp((w0 - b0) * dt, (w1 - b1) * dt, (w2 - b2) * dt)
+        Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = _qmul(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3], e[0], e[1], e[2], e[3])
+        X[i, 3], X[i, 4], X[i, 5] = b0, b1, b2
+    # errors relative to the propagated centre: dp(q_0^* q_i), dp_0 = 0 exactly
+    c0, c1, c2, c3 = Q[0, 0], -Q[0, 1], -Q[0, 2], -Q[0, 3]
+    X[0, 0], X[0, 1], X[0, 2] = 0.0, 0.0, 0.0
+    for i in range(1, _NP):
+        d = _qmul(c0, c1, c2, c3, Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3])
+        X[i, 0], X[i, 1], X[i, 2] = _grp_from_dq(d[0], d[1], d[2], d[3])
+    _centre(X, _N, mean)
+    _weighted_cov(X, _N, P)
+    sg2, sb2 = prm[R_SG2], prm[R_SB2]  # usque.process_noise
+    qaa = sg2 * dt + sb2 * dt**3 / 3.0
+    qab = -sb2 * dt**2 / 2.0
+    qbb = sb2 * dt
+    for k in range(3):
+        P[k, k] += qaa
+        P[k, k + 3] += qab
+        P[k + 3, k] += qab
+        P[k + 3, k + 3] += qbb
+    d = _dq_from_grp(mean[0], mean[1], mean[2])
+    q = _qmul(Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3], d[0], d[1], d[2], d[3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    x[X_BG], x[X_BG + 1], x[X_BG + 2] = mean[3], mean[4], mean[5]
+
+
+@njit(**_JIT)
+def _predict_vector(work, r0, r1, r2):
+    """usque._rotate_inv: Y_i = C_bn(q_i) r for the 13 point quaternions."""
+    Q, Y = work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
+    for i in range(_NP):
+        w, v0, v1, v2 = Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]
+        c0, c1, c2 = v1 * r2 - v2 * r1, v2 * r0 - v0 * r2, v0 * r1 - v1 * r0  # v x r
+        a = w * w - (v0 * v0 + v1 * v1 + v2 * v2)
+        b = 2.0 * (v0 * r0 + v1 * r1 + v2 * r2)
+        Y[i, 0] = (a * r0 + b * v0) - 2.0 * w * c0
+        Y[i, 1] = (a * r1 + b * v1) - 2.0 * w * c1
+        Y[i, 2] = (a * r2 + b * v2) - 2.0 * w * c2
+
+
+@njit(**_JIT)
+def _predict_heading(work):
+    """The points' yaw (euler_from_quat), unwrapped about the centre's: Y_0 + wrap(Y_i - Y_0)."""
+    Q, Y = work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
+    for i in range(_NP):
+        Y[i, 0] = _euler(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3])[2]
+    y0 = Y[0, 0]
+    for i in range(_NP):
+        Y[i, 0] = y0 + _wrap_pi(Y[i, 0] - y0)
+
+
+@njit(**_JIT)
+def _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, gate2, angle):
+    """UsqueStreamer._update (SPEC 4.1 step 5) once ``_sigma`` and the predictions
+    Y (13, m) are in place: the measurement is in work[U_NU, :m], noise ``var`` I (m = 1
+    or 3); ``angle``: differences wrapped to +-pi. Returns whether it was accepted."""
+    S, Y = work[U_S : U_S + _NP], work[U_Y : U_Y + _NP]
+    Pyy, Si = work[U_PYY : U_PYY + 3], work[U_SI : U_SI + 3]
+    Pxy, K = work[U_PXY : U_PXY + _N], work[U_K : U_K + _N]
+    y, nu, dx = work[U_MEAN], work[U_NU], work[U_DX]
+    _centre(Y, m, y)
+    _weighted_cov(Y, m, Pyy)
+    for k in range(m):
+        Pyy[k, k] += var
+        z = nu[k]
+        nu[k] = _wrap_pi(z - y[k]) if angle else z - y[k]
+    for r in range(_N):
+        for k in range(m):
+            s = _W0 * S[0, r] * Y[0, k]
+            for i in range(1, _NP):
+                s += _WI * S[i, r] * Y[i, k]
+            Pxy[r, k] = s
+    _inverse_small(Pyy, Si, m)
+    nis = 0.0
+    bad = 0
+    for k in range(m):
+        v = 0.0
+        for l in range(m):
+            v += Si[k, l] * nu[l]
+        nis += nu[k] * v
+        if not (nu[k] * nu[k] <= gate2 * Pyy[k, k]):
+            bad += 1
+    accepted = bad == 0
+    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
+    if not accepted:
+        return False
+    # K = Pxy Pyy^-1, dx = K nu, P -= K Pyy K^T (then symmetrised, as the reference)
+    for r in range(_N):
+        s = 0.0
+        for k in range(m):
+            v = 0.0
+            for l in range(m):
+                v += Si[k, l] * Pxy[r, l]
+            K[r, k] = v
+            s += v * nu[k]
+        dx[r] = s
+    for r in range(_N):
+        for c in range(_N):
+            s = 0.0
+            for k in range(m):
+                kp = 0.0
+                for l in range(m):
+                    kp += K[r, l] * Pyy[l, k]
+                s += kp * K[c, k]
+            P[r, c] -= s
+    for r in range(_N):
+        for c in range(r + 1, _N):
+            v = 0.5 * (P[r, c] + P[c, r])
+            P[r, c] = v
+            P[c, r] = v
+    d = _dq_from_grp(dx[0], dx[1], dx[2])
+    q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], d[0], d[1], d[2], d[3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    for a in range(3):
+        x[X_BG + a] += dx[3 + a]
+    return True
+
+
+# --- event steps and the loop ---------------------------------------------------------------
+
+
+@njit(inline="always", **_JIT)
+def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
+    """UsqueStreamer._imu and _fuse_accel for a finite sample row = [w_b, f_b]."""
+    fx, fy, fz = row[3], row[4], row[5]
+    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = fx, fy, fz
+    flags[S_FLAST] = 1
+    if flags[S_INIT] == 0:
+        _try_init(cfg, prm, x, flags, P, work)
+        x[X_TIMU] = t
+        return
+    dt = t - x[X_TIMU]
+    x[X_TIMU] = t
+    if dt > 0:
+        _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
+    nu = work[U_NU]
+    g = prm[R_GRAV]
+    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
+        nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
+        _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
+        return
+    _sigma(x, P, work)
+    _predict_vector(work, -0.0, -0.0, -g)  # -g_n
+    nu[0], nu[1], nu[2] = fx, fy, fz
+    sensor, m = np.int64(INN_ACCEL), np.int64(3)
+    _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, prm[R_ACC_VAR], prm[R_GATE2_ACC], False)
+
+
+@njit(inline="always", **_JIT)
+def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
+    """UsqueStreamer._mag for a finite sample row[:3] (tesla, body)."""
+    mx, my, mz = row[0], row[1], row[2]
+    if flags[S_INIT] == 0:
+        if flags[S_FMAG] == 0:
+            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = mx, my, mz
+            flags[S_FMAG] = 1
+        _try_init(cfg, prm, x, flags, P, work)
+        return
+    mode = cfg[C_MAG]
+    if mode == MAG_OFF:
+        return
+    if flags[S_MAGN] == 0:
+        _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
+    rx, ry, rz = x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
+    nu = work[U_NU]
+    sensor = np.int64(INN_MAG)
+    if mode == MAG_3D:
+        _sigma(x, P, work)
+        _predict_vector(work, rx, ry, rz)
+        nu[0], nu[1], nu[2] = mx, my, mz
+        _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(3), prm[R_MAG_VAR], prm[R_GATE2_MAG], False)
+        return
+    # heading only, tilt-compensated with the current roll/pitch estimate (as [mekf])
+    roll, pitch, _ = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    ql = _quat_from_euler(roll, pitch, 0.0)
+    c = _dcm9(ql[0], ql[1], ql[2], ql[3])
+    m0 = c[0] * mx + c[1] * my + c[2] * mz
+    m1 = c[3] * mx + c[4] * my + c[5] * mz
+    nu[0] = math.atan2(ry, rx) - math.atan2(m1, m0)
+    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
+    _sigma(x, P, work)
+    _predict_heading(work)
+    _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(1), sigma**2, prm[R_GATE2_MAG], True)
+
+
+@njit(**_JIT)
+def run_usque(st, t_ev, kinds, vals, out_q, out_bg, out_vw, out_cov, rec):
+    """compiled.run_events for [usque]: feed the merged events (t_ev (E,), kinds (E,),
+    vals (E, 6)), skip and count NaN samples, and (rec) record for IMU sample k the state
+    after every event with t <= t_imu[k]. out_vw: an empty (0, 3) array (no velocity or
+    wind states). Events other than IMU and magnetometer are ignored, as the reference
+    does."""
+    k = np.int64(-1)
+    cfg, prm, x, flags, P, work, _, inn, acc = st
+    n_ev = t_ev.shape[0]
+    for i in range(n_ev):
+        kind = kinds[i]
+        t = t_ev[i]
+        row = vals[i]
+        if kind == EVENT_IMU:
+            k += 1
+            ok = True
+            for a in range(6):
+                if not math.isfinite(row[a]):
+                    ok = False
+            if ok:
+                _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row)
+            else:
+                flags[K_SKIP] += 1
+        elif kind == EVENT_MAG:
+            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
+                _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row)
+            else:
+                flags[K_SKIP + 1] += 1
+        if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
+            record(cfg, x, flags, P, work, k, out_q, out_bg, out_vw, out_vw, out_cov)
+
+
+# --- Python side ----------------------------------------------------------------------------
+
+
+def _kernel_params(params: EskfParams) -> EskfParams:
+    """The parameters make_state encodes: [usque] carries no magnetometer-bias states
+    whatever init_mag_bias says (the reference ignores it), so the [att, bg] layout."""
+    return params.replace(init_mag_bias=0.0) if params.init_mag_bias > 0 else params
+
+
+def _kernel_initial(initial: InitialState | None) -> InitialState | None:
+    """The reference normalises the given attitude (the [mekf] kernels take it as is)."""
+    if initial is None:
+        return None
+    return dataclasses.replace(initial, q_nb=quat_normalize(np.asarray(initial.q_nb, dtype=np.float64)))
+
+
+class UsqueFastStreamer(CompiledStreamer):
+    """[usque], compiled, fed sample by sample through the batch loop :func:`run_usque`
+    (so a flight streamed equals its batch estimate)."""
+
+    def __init__(
+        self, name: str, params: EskfParams, site: Site, initial: InitialState | None, has: frozenset[str]
+    ) -> None:
+        super().__init__(name, _KERNEL_KIND, False, _kernel_params(params), site, _kernel_initial(initial), has)
+
+    def _step(self, kind: int, t: float) -> None:
+        st = self._st
+        if (st.flags[L_CNT : L_CNT + 6] >= st.cfg[C_CAP : C_CAP + 6]).any():
+            self._st = st = _grow(st)  # an event logs at most one row per sensor
+        self._t[0] = t
+        self._kind[0] = kind
+        run_usque(st, self._t, self._kind, self._row, self._none[0], self._none[1], self._none[2], self._none[4], False)
+
+    def _gnss(self, t: float, v_n: F64) -> None:
+        """[usque] fuses no GNSS velocity."""
+
+    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
+        """[usque] fuses no air data."""
+
+
+class UsqueFast(Usque):
+    """[usque], compiled: same name, parameters and output as :class:`Usque`."""
+
+    def __init__(self, params: EskfParams | None = None) -> None:
+        super().__init__(params)
+
+    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+        """Estimate the whole flight in one compiled loop (the reference's output)."""
+        self.check(flight)
+        has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
+        t_ev, kinds, vals = merge_events(flight, has)
+        counts = np.bincount(kinds, minlength=4)
+        caps = np.array([counts[EVENT_IMU], counts[EVENT_MAG], 0, 0, 0, 0], dtype=np.int64)
+        kp = _kernel_params(self.params)
+        st: KernelState = make_state(_KERNEL_KIND, False, kp, flight.site, _kernel_initial(initial), has, caps)
+        L = layout_of(_KERNEL_KIND, kp)
+        N = len(flight.imu.t)
+        q, bg, cov = np.empty((N, 4)), np.empty((N, 3)), np.empty((N, _N, _N))
+        run_usque(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, np.empty((0, 3)), cov, True)
+        skipped = st.flags[K_SKIP : K_SKIP + 4]
+        return Estimate(
+            filter=self.label,
+            t=flight.imu.t.copy(),
+            q_nb=q,
+            gyro_bias_b=bg,
+            v_n=None,
+            wind_n=None,
+            cov=cov,
+            state_labels=L.labels(),
+            innovations=_innovations(st, self.params.mag_mode),
+            skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
+            params=self.params_text(),
+        )
+
+    # The reference annotates ``-> UsqueStreamer``; the compiled streamer offers the same
+    # Streamer interface without UsqueStreamer's Python internals.
+    def streamer(  # type: ignore[override]
+        self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
+    ) -> UsqueFastStreamer:
+        return UsqueFastStreamer(self.name, self.params, site, initial, has)
