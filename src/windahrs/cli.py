@@ -19,6 +19,7 @@ from tqdm import tqdm
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
+    from windahrs.estimate import Estimate
     from windahrs.flight import Flight
     from windahrs.metrics import Score
 
@@ -223,13 +224,18 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise UsageError("--filters: expected a comma-separated list of filter names, found none")
     estimators = [make_estimator(n) for n in names]  # fail on a bad name before any work
     flight = _read(args.file)
-    rows = []
-    for est in tqdm(estimators, desc="compare", disable=None, file=sys.stderr):
-        rows.append(score(est.run(flight), flight))
+    results = []
+    for name, est in tqdm(list(zip(names, estimators, strict=True)), desc="compare", disable=None, file=sys.stderr):
+        results.append((name, est.run(flight)))
+    extra: dict[str, object] = {}
+    if args.align:
+        # The alignment is a result: on stdout with the table, on stderr beside JSON.
+        flight, extra = _align_or_fail(flight, results[0], to_stdout=not args.json)
+    rows = [score(est, flight) for _, est in results]
     if args.json:
-        print(json.dumps([r.as_dict() for r in rows], indent=1))
+        print(json.dumps([{**r.as_dict(), **extra} for r in rows], indent=1))
         return 0
-    print(f"RMSE in deg against {rows[0].reference}; from sample 50 | second half")
+    print(f"RMSE in deg against {rows[0].reference}{' (aligned)' if extra else ''}; from sample 50 | second half")
     axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
     print(f"{'filter':<14}{axes}{axes}{'tilt':>8}{'total':>8}")
     for r in rows:
@@ -239,6 +245,130 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}"
         )
     return 0
+
+
+def _align_or_fail(
+    flight: Flight, fitted_on: tuple[str, Estimate], *, to_stdout: bool
+) -> tuple[Flight, dict[str, object]]:
+    """compare --align: the flight with its reference aligned to the first filter's
+    estimate, and the alignment as JSON fields; prints the alignment."""
+    from windahrs.experiments.align import apply_alignment, estimate_alignment
+    from windahrs.report.log_report import alignment_warning, describe_alignment
+
+    spec, est = fitted_on
+    if flight.reference is None:
+        _note(f"--align: {_nothing_to_align(flight)}")
+        return flight, {}
+    try:
+        al = estimate_alignment(est, flight)
+    except ValueError as exc:
+        raise UsageError(f"--align: {exc}") from None
+    print(describe_alignment(al, spec), file=sys.stdout if to_stdout else sys.stderr)
+    warning = alignment_warning(al)
+    if warning:
+        _note(f"warning: {warning}")
+    fields: dict[str, object] = {
+        "aligned_on": spec,
+        "mount_deg": al.mount_angle_deg,
+        "mount_q": [float(v) for v in al.q_mount],
+        "time_offset_s": al.time_offset_s,
+    }
+    return apply_alignment(flight, al), fields
+
+
+def _nothing_to_align(flight: Flight) -> str:
+    if flight.truth is not None:
+        return "simulation truth is in the estimators' frame and on their clock by construction; nothing to align"
+    return "the flight has no reference attitude; nothing to align"
+
+
+def _note(text: str) -> None:
+    print(f"windahrs: {text}", file=sys.stderr)
+
+
+DEFAULT_REPORT_FILTERS = "mekf,ins-wind,vqf"
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from windahrs.experiments.align import estimate_alignment
+    from windahrs.filters.base import MissingSensorError
+    from windahrs.filters.registry import REGISTRY, make_estimator
+    from windahrs.filters.registry import names as installed
+    from windahrs.report.html import write_html
+    from windahrs.report.log_report import alignment_warning, build_log_report, describe_alignment
+
+    explicit = args.filters is not None
+    specs = [s.strip() for s in (args.filters if explicit else DEFAULT_REPORT_FILTERS).split(",") if s.strip()]
+    if not specs:
+        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
+    if args.out.is_dir():
+        raise UsageError(f"--out: expected a file name, found the directory {args.out}")
+    available = set(installed())
+    estimators = {}
+    failures: dict[str, str] = {}
+    notes: list[str] = []
+    for spec in specs:
+        name = spec.split(":")[0]
+        if name in REGISTRY and name not in available:  # not installed: reported; an unknown name fails below
+            why = "needs a package that is not installed (pip install 'windahrs[baselines]')"
+            if explicit:
+                failures[spec] = why
+            else:
+                notes.append(f"Default filter {spec} left out: it {why}.")
+            continue
+        estimators[spec] = make_estimator(spec)  # fail on a bad name or field before any work
+    flight = _read(args.file)
+    if not explicit:
+        for spec, est in list(estimators.items()):
+            try:
+                est.check(flight)
+            except MissingSensorError as exc:
+                del estimators[spec]
+                notes.append(f"Default filter {spec} left out: {exc}.")
+    results = []
+    for spec, est in tqdm(estimators.items(), desc="report", disable=None, file=sys.stderr):
+        try:
+            results.append((spec, est.run(flight)))
+        except ValueError as exc:  # a missing sensor, a failed initialisation: report it, go on
+            failures[spec] = str(exc)
+            _note(f"filter {spec} not run: {exc}")
+    if not results:
+        why = "; ".join(f"{k}: {v}" for k, v in failures.items()) or "; ".join(notes) or "none given"
+        raise UsageError(f"--filters: no filter could run on {args.file}: {why}")
+    alignment = None
+    aligned_on = None
+    if args.align:
+        if flight.reference is None:
+            notes.append(f"--align: {_nothing_to_align(flight)}.")
+            _note(f"--align: {_nothing_to_align(flight)}")
+        else:
+            aligned_on, est0 = results[0]
+            try:
+                alignment = estimate_alignment(est0, flight)
+                print(describe_alignment(alignment, aligned_on))
+                warning = alignment_warning(alignment)
+                if warning:
+                    _note(f"warning: {warning}")
+            except ValueError as exc:
+                notes.append(f"--align: no alignment ({exc}); scores are against the reference as logged.")
+                _note(f"--align: no alignment: {exc}")
+                aligned_on = None
+    page = build_log_report(
+        flight, results, alignment=alignment, aligned_on=aligned_on, failures=failures, notes=notes,
+        title=f"windahrs report: {args.file.name}",
+    )
+    write_html(args.out, page)
+    print(f"wrote {args.out}")
+    return 0
+
+
+ALIGN_HELP = (
+    "before scoring, estimate a constant mounting rotation and time offset between the reference and the FIRST "
+    "filter's estimate (put the most accurate first) and remove that one alignment for every filter, so all are "
+    "scored against the same reference (fitting each filter its own would also hide its constant errors); "
+    "prints the mount angle and time offset (beside --json: on stderr). Needs a logged reference (mocap or "
+    "autopilot); a residual over 5 deg is flagged as an unreliable alignment"
+)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -327,7 +457,27 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("file", type=Path, metavar="FILE")
     c.add_argument("--filters", required=True, metavar="A,B,...", help="comma-separated estimator names")
     c.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
+    c.add_argument("--align", action="store_true", help=ALIGN_HELP)
     c.set_defaults(func=_cmd_compare)
+
+    rp = sub.add_parser(
+        "report",
+        help="one HTML page: estimators against the reference, errors, innovations and NIS, wind, sensors",
+        description="Run estimators on a flight or log and write a self-contained HTML report: attitude of each "
+        "estimator against the flight's truth or reference with the errors and the RMSE table of 'compare', "
+        "innovations and NIS per sensor, the wind estimate against the log's own wind, and a sensor summary "
+        "(rates, gaps, NaN samples, saturation). A filter that cannot run (e.g. a missing sensor) is listed in "
+        "the report and on stderr; the command fails only when no filter runs.",
+    )
+    rp.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file or a log")
+    rp.add_argument(
+        "--filters", default=None, metavar="A,B,...",
+        help=f"estimator specs (default: {DEFAULT_REPORT_FILTERS}, leaving out those the flight lacks a sensor "
+        "for or that are not installed)",
+    )
+    rp.add_argument("--align", action="store_true", help=ALIGN_HELP)
+    rp.add_argument("--out", type=Path, required=True, metavar="REPORT.html", help="the HTML file to write")
+    rp.set_defaults(func=_cmd_report)
 
     x = sub.add_parser(
         "experiment",
