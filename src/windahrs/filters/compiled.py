@@ -55,7 +55,7 @@ from windahrs.filters.base import (
     merge_events,
 )
 from windahrs.filters.ekf7 import Ekf7, Ekf10
-from windahrs.filters.eskf import InsWind, Kind, Mekf, MekfAir, _EskfEstimator, layout_for
+from windahrs.filters.eskf import InsWind, Kind, Mekf, MekfAir, _EskfEstimator, effective_mag_mode, layout_for
 from windahrs.filters.params import EskfParams
 from windahrs.flight import Flight, Site
 from windahrs.models.error_state import Layout
@@ -124,7 +124,8 @@ C_N = 18  # covariance dimension (additive: DIM + 1)
 C_OFF = 19  # (6,) first row of each sensor's log
 C_CAP = 25  # (6,) rows of each sensor's log
 C_IBM = 31  # ... magnetometer bias (-1: none)
-N_CFG = 32
+C_HVERT = 32  # heading model: 1 "vertical", 0 "yaw"
+N_CFG = 33
 
 # prm: parameters (float64), fixed for a run; squared in Python as the reference does.
 R_SG2 = 0  # gyro noise density^2
@@ -158,7 +159,12 @@ R_INI_V = 34  # (3,)
 R_INI_W = 37  # (3,)
 R_P0_BM = 40
 R_SBM2 = 41  # magnetometer bias noise^2
-N_PRM = 42
+R_ACC_LP = 42  # accel_lowpass, s (0: raw samples)
+R_MAG_LP = 43  # mag_lowpass, s (0: raw samples)
+R_SCALE2 = 44  # gyro_scale_noise^2
+R_MAG_NGATE = 45  # mag_norm_gate (0: off)
+R_MAG_DGATE = 46  # mag_dip_gate, rad (0: off)
+N_PRM = 47
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -176,7 +182,10 @@ X_FV = 34  # first GNSS velocity (before initialisation)
 X_TIMU = 37
 X_TGNSS = 38
 X_BM = 40  # (3,) magnetometer bias
-N_X = 43
+X_FBAR = 43  # (3,) low-passed specific force, body
+X_MBAR = 46  # (3,) low-passed magnetic field, body
+X_TMBAR = 49  # time of the last magnetometer sample in it
+N_X = 50
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -192,7 +201,9 @@ S_SEQ = 9  # sensors that have logged so far
 L_CNT = 10  # (6,) log rows used per sensor
 L_FIRST = 16  # (6,) order of each sensor's first log row (-1: none)
 K_SKIP = 22  # (4,) NaN samples skipped: imu, mag, gnss, air
-N_FLAGS = 26
+S_FBAR = 26  # the low-passed specific force is set
+S_MBAR = 27  # the low-passed magnetic field is set
+N_FLAGS = 28
 
 # work: scratch rows of NMAX columns.
 W_H = 0  # (3,) measurement Jacobian rows, error-state columns
@@ -437,8 +448,59 @@ def _try_init(cfg, prm, x, flags, P, work):
         _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
     elif cfg[C_SITE_MAG] == 1:
         _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
+    if prm[R_ACC_LP] > 0:
+        for a in range(3):
+            x[X_FBAR + a] = x[X_FLAST + a]
+        flags[S_FBAR] = 1
     flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
     flags[S_INIT] = 1
+
+
+@njit(**_JIT)
+def _lowpass_gain(dt, tau):
+    """eskf.lowpass_gain: weight of a new sample in a first-order low-pass after dt."""
+    return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
+
+
+@njit(**_JIT)
+def _rotate_lowpass(x, flags, wx, wy, wz, dt):
+    """EskfStreamer._rotate_lowpass: the low-passed vectors into the new body frame,
+    v <- C(Exp(w dt))^T v (w bias-corrected)."""
+    e = _qexp(wx * dt, wy * dt, wz * dt)
+    c = _dcm9(e[0], e[1], e[2], e[3])
+    if flags[S_FBAR] == 1:
+        _rotate_into(c, x, np.int64(X_FBAR))
+    if flags[S_MBAR] == 1:
+        _rotate_into(c, x, np.int64(X_MBAR))
+
+
+@njit(**_JIT)
+def _rotate_into(c, x, i0):
+    """x[i0:i0+3] <- C^T x[i0:i0+3] (c: C row-major)."""
+    v0, v1, v2 = x[i0], x[i0 + 1], x[i0 + 2]
+    x[i0] = c[0] * v0 + c[3] * v1 + c[6] * v2
+    x[i0 + 1] = c[1] * v0 + c[4] * v1 + c[7] * v2
+    x[i0 + 2] = c[2] * v0 + c[5] * v1 + c[8] * v2
+
+
+@njit(**_JIT)
+def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
+    """EskfStreamer._mag_disturbed: the field to be fused fails the norm or dip check."""
+    if cfg[C_IBM] >= 0:
+        mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
+    r_norm = math.sqrt(rx * rx + ry * ry + rz * rz)
+    ng = prm[R_MAG_NGATE]
+    if ng > 0 and abs(math.sqrt(mx * mx + my * my + mz * mz) - r_norm) > ng * r_norm:
+        return True
+    dg = prm[R_MAG_DGATE]
+    if dg > 0:
+        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        n0 = c[0] * mx + c[1] * my + c[2] * mz
+        n1 = c[3] * mx + c[4] * my + c[5] * mz
+        n2 = c[6] * mx + c[7] * my + c[8] * mz
+        if abs(math.atan2(n2, math.hypot(n0, n1)) - math.atan2(rz, math.hypot(rx, ry))) > dg:
+            return True
+    return False
 
 
 # --- prediction ---------------------------------------------------------------------------
@@ -590,6 +652,8 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             P[c, r] = v
     # process noise
     sg2, sb2 = prm[R_SG2], prm[R_SB2]
+    if prm[R_SCALE2] > 0:  # rate-proportional gyro noise
+        sg2 = sg2 + prm[R_SCALE2] * (wx * wx + wy * wy + wz * wz)
     qaa = sg2 * dt + sb2 * dt**3 / 3.0
     qab = -sb2 * dt**2 / 2.0
     qbb = sb2 * dt
@@ -922,32 +986,49 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     dt = t - x[X_TIMU]
     x[X_TIMU] = t
     if dt > 0:
+        if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
+            _rotate_lowpass(x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
         if cfg[C_ADD] == 1:
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
             _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
     if cfg[C_KIND] == KIND_INS:
         return
-    # the accelerometer as a gravity measurement, gated on |f|
+    # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
     g = prm[R_GRAV]
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    k0, k1, k2 = 0.0, 0.0, 0.0  # compensation acceleration, body
+    comp = cfg[C_COMP]
+    has_k = False
+    if comp == COMP_AIRSPEED and flags[S_VAIR] == 1:  # (w - bg) x V_air
+        ux, uy, uz = row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2]
+        vx, vy, vz = x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2]
+        k0, k1, k2 = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        has_k = True
+    elif comp == COMP_GNSS and flags[S_AGNSS] == 1:  # C_bn a_gnss
+        ax, ay, az = x[X_AGNSS], x[X_AGNSS + 1], x[X_AGNSS + 2]
+        k0 = c[0] * ax + c[3] * ay + c[6] * az
+        k1 = c[1] * ax + c[4] * ay + c[7] * az
+        k2 = c[2] * ax + c[5] * ay + c[8] * az
+        has_k = True
+    if flags[S_FBAR] == 1:  # the mean of the compensated specific force, no compensation after
+        a = _lowpass_gain(dt, prm[R_ACC_LP])
+        if has_k:
+            fx, fy, fz = fx - k0, fy - k1, fz - k2
+        x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
+        x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
+        x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
+        fx, fy, fz = x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
+        has_k = False
     if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
         _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
         return
-    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     y0, y1, y2 = c[6] * -g, c[7] * -g, c[8] * -g  # C_bn (-g_n)
     h0, h1, h2 = y0, y1, y2
-    comp = cfg[C_COMP]
-    if comp == COMP_AIRSPEED and flags[S_VAIR] == 1:  # + (w - bg) x V_air
-        ux, uy, uz = row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2]
-        vx, vy, vz = x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2]
-        h0, h1, h2 = y0 + (uy * vz - uz * vy), y1 + (uz * vx - ux * vz), y2 + (ux * vy - uy * vx)
-    elif comp == COMP_GNSS and flags[S_AGNSS] == 1:  # + C_bn a_gnss
-        ax, ay, az = x[X_AGNSS], x[X_AGNSS + 1], x[X_AGNSS + 2]
-        h0 = y0 + (c[0] * ax + c[3] * ay + c[6] * az)
-        h1 = y1 + (c[1] * ax + c[4] * ay + c[7] * az)
-        h2 = y2 + (c[2] * ax + c[5] * ay + c[8] * az)
+    if has_k:
+        h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
     _vector_rows(work, sup[0], y0, y1, y2, prm[R_ACC_VAR])
     nsup = 3
     iba = cfg[C_IBA]
@@ -980,6 +1061,22 @@ def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
     rx, ry, rz = x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
     nu = work[W_NU]
+    if prm[R_MAG_LP] > 0:  # fuse the low-passed field
+        if flags[S_MBAR] == 0:
+            x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2] = mx, my, mz
+            flags[S_MBAR] = 1
+        else:
+            a = _lowpass_gain(t - x[X_TMBAR], prm[R_MAG_LP])
+            x[X_MBAR] = x[X_MBAR] + a * (mx - x[X_MBAR])
+            x[X_MBAR + 1] = x[X_MBAR + 1] + a * (my - x[X_MBAR + 1])
+            x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])
+        x[X_TMBAR] = t
+        mx, my, mz = x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2]
+    if (prm[R_MAG_NGATE] > 0 or prm[R_MAG_DGATE] > 0) and _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
+        nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
+        md = np.int64(3) if mode == MAG_3D else np.int64(1)
+        _log(cfg, flags, inn, acc, nu, np.int64(INN_MAG), t, md, np.nan, np.bool_(False))
+        return
     if mode == MAG_3D:
         c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
         y0 = c[0] * rx + c[3] * ry + c[6] * rz
@@ -1000,7 +1097,21 @@ def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         sensor, m, ns = np.int64(INN_MAG), np.int64(3), np.int64(nsup)
         _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
         return
-    # heading only: tilt-compensate with the current roll/pitch estimate
+    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
+    if cfg[C_HVERT] == 1:
+        # the field's heading in the nav frame against the reference's, corrected about
+        # the nav vertical only: H_att = third row of C_nb
+        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        n0 = c[0] * mx + c[1] * my + c[2] * mz
+        n1 = c[3] * mx + c[4] * my + c[5] * mz
+        nu[0] = _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
+        work[W_H, 0], work[W_H, 1], work[W_H, 2] = c[6], c[7], c[8]
+        sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
+        work[W_R, 0] = sigma**2
+        sensor, m, ns = np.int64(INN_MAG), np.int64(1), np.int64(3)
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+        return
+    # heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate
     roll, pitch, yaw = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     ql = _quat_from_euler(roll, pitch, 0.0)
     c = _dcm9(ql[0], ql[1], ql[2], ql[3])
@@ -1011,7 +1122,6 @@ def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     cp = math.cos(pitch)
     work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, math.sin(roll) / cp, math.cos(roll) / cp
     sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
-    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
     work[W_R, 0] = sigma**2
     sensor, m, ns = np.int64(INN_MAG), np.int64(1), np.int64(3)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
@@ -1321,7 +1431,8 @@ def make_state(
     cfg[C_KIND] = _KINDS[kind]
     cfg[C_ADD] = int(additive)
     cfg[C_COMP] = COMP_AIRSPEED if kind == "mekf-air" else _COMP[p.accel_compensation]
-    cfg[C_MAG] = _MAG[p.mag_mode]
+    cfg[C_MAG] = _MAG[effective_mag_mode(p, site)]
+    cfg[C_HVERT] = int(p.heading_model == "vertical")
     cfg[C_AIR] = _AIR[p.air_mode]
     cfg[C_SYN] = int(p.synthetic_sideslip)
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
@@ -1370,6 +1481,11 @@ def make_state(
     prm[R_P0_BA] = p.init_accel_bias**2
     prm[R_P0_BM] = p.init_mag_bias**2
     prm[R_SBM2] = p.mag_bias_noise**2
+    prm[R_ACC_LP] = p.accel_lowpass
+    prm[R_MAG_LP] = p.mag_lowpass
+    prm[R_SCALE2] = p.gyro_scale_noise**2
+    prm[R_MAG_NGATE] = p.mag_norm_gate
+    prm[R_MAG_DGATE] = p.mag_dip_gate
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -1455,6 +1571,7 @@ class CompiledStreamer(Streamer):
         self.params = params
         self.layout = layout_of(kind, params, additive)
         self._st = make_state(kind, additive, params, site, initial, has, np.full(6, 256, dtype=np.int64))
+        self._mag_fusion = effective_mag_mode(params, site)
         # one event at a time through the batch loop, without recording
         self._t = np.zeros(1)
         self._kind = np.zeros(1, dtype=np.int64)
@@ -1492,7 +1609,7 @@ class CompiledStreamer(Streamer):
         self._step(EVENT_AIR, t)
 
     def innovations(self) -> dict[str, Innovations]:
-        return _innovations(self._st, self.params.mag_mode)
+        return _innovations(self._st, self._mag_fusion)
 
     @property
     def state(self) -> StateView:
@@ -1545,7 +1662,7 @@ class _Compiled(_EskfEstimator):
             wind_n=w if L.has("wind") else None,
             cov=cov,
             state_labels=L.labels(),
-            innovations=_innovations(st, self.params.mag_mode),
+            innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
         )

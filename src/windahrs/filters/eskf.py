@@ -4,7 +4,10 @@ Three estimators share one core:
 
 * [mekf]: attitude error and gyro bias; accelerometer as a gravity measurement (gated on
   ``|f|`` and on its innovation, optionally compensated by GNSS velocity differences or by
-  ``w x V_air``), magnetometer in 3-D or heading only.
+  ``w x V_air``), magnetometer in 3-D or heading only. Its defaults (:data:`MEKF_FIELD`)
+  fuse the means of the specific force and of the field in an almost inertial frame
+  (``accel_lowpass``, ``mag_lowpass``), add rate-proportional gyro noise and take only the
+  heading, about the vertical, from the magnetometer when the site's field is unknown.
 * [mekf-air]: the paper's idea done right: [mekf] plus wind states, fusing the air-data
   vector ``C_bn (V_gnss - W)`` (pitot and vanes) or, with a pitot alone, true airspeed and
   a synthetic zero sideslip; the accelerometer is compensated by ``w x V_air``.
@@ -32,9 +35,9 @@ from windahrs.filters.params import EskfParams
 from windahrs.flight import Site
 from windahrs.models import observations as obs
 from windahrs.models.error_state import Layout, NominalState, ProcessNoise, predict
-from windahrs.rotation import air_direction, dcm_from_quat, euler_from_quat, quat_from_euler
+from windahrs.rotation import air_direction, dcm_from_quat, euler_from_quat, quat_exp, quat_from_euler
 
-__all__ = ["EskfStreamer", "InsWind", "Mekf", "MekfAir", "layout_for"]
+__all__ = ["MEKF_FIELD", "EskfStreamer", "InsWind", "Mekf", "MekfAir", "effective_mag_mode", "layout_for"]
 
 F64 = NDArray[np.float64]
 Kind = Literal["mekf", "mekf-air", "ins-wind"]
@@ -47,6 +50,20 @@ def mag_reference(site: Site, q_nb: F64, mag_b: F64) -> F64:
         return site.mag_n.copy()
     m = dcm_from_quat(q_nb) @ mag_b
     return np.array([np.hypot(m[0], m[1]), 0.0, m[2]])
+
+
+def effective_mag_mode(params: EskfParams, site: Site) -> Literal["3d", "heading", "off"]:
+    """How the magnetometer is fused: ``params.mag_mode``, except "3d" becomes "heading"
+    with ``mag_3d_needs_site`` when the site's field is unknown (its dip would come from
+    one sample)."""
+    if params.mag_mode == "3d" and params.mag_3d_needs_site and site.mag_n is None:
+        return "heading"
+    return params.mag_mode
+
+
+def lowpass_gain(dt: float, tau: float) -> float:
+    """Weight of a new sample in a first-order low-pass of time constant tau after dt."""
+    return float(1.0 - np.exp(-dt / tau)) if dt > 0 else 0.0
 
 
 def layout_for(kind: Kind, params: EskfParams, *, additive: bool = False) -> Layout:
@@ -96,6 +113,7 @@ class EskfStreamer(Streamer):
             wind_v=params.wind_noise_vertical,
             accel_bias=params.accel_bias_noise,
             mag_bias=params.mag_bias_noise,
+            gyro_scale=params.gyro_scale_noise,
         )
         self.initial = initial
         self.wait_mag = "mag" in has and params.mag_mode != "off" and initial is None
@@ -112,6 +130,11 @@ class EskfStreamer(Streamer):
         self.v_air_b: F64 | None = None
         self._first_mag: F64 | None = None
         self._first_v: F64 | None = None
+        # low-passed specific force and magnetic field (body frame, rotated by the gyro)
+        self.f_bar: F64 | None = None
+        self.m_bar: F64 | None = None
+        self.t_mbar = 0.0
+        self.mag_fusion = effective_mag_mode(params, site)
 
     # -- initialisation ---------------------------------------------------------------
     def _try_init(self) -> None:
@@ -156,6 +179,8 @@ class EskfStreamer(Streamer):
             self.mag_n = mag_reference(
                 self.site, q, self._first_mag if self._first_mag is not None else np.zeros(3)
             )
+        if p.accel_lowpass > 0:
+            self.f_bar = np.array(self.f_last, dtype=float)
         self._init_wind_pending = L.has("wind") and (ini is None or ini.wind_n is None)
 
     # -- generic prediction and update -------------------------------------------------
@@ -191,23 +216,41 @@ class EskfStreamer(Streamer):
         self.t_imu = t
         self.w_last = w_b
         if dt > 0:
+            self._rotate_lowpass(w_b, dt)
             self._predict(w_b, f_b, dt)
         if self.kind != "ins-wind":
-            self._fuse_accel(t, w_b, f_b)
+            self._fuse_accel(t, w_b, f_b, dt)
 
-    def _fuse_accel(self, t: float, w_b: F64, f_b: F64) -> None:
+    def _rotate_lowpass(self, w_b: F64, dt: float) -> None:
+        """Carry the low-passed vectors into the new body frame: ``v <- C(Exp(w dt))^T v``
+        with the bias-corrected rate of the prediction (nav-fixed vectors stay fixed)."""
+        if self.f_bar is None and self.m_bar is None:
+            return
+        assert self.x is not None
+        Ct = dcm_from_quat(quat_exp((w_b - self.x.bg) * dt)).T
+        if self.f_bar is not None:
+            self.f_bar = Ct @ self.f_bar
+        if self.m_bar is not None:
+            self.m_bar = Ct @ self.m_bar
+
+    def _fuse_accel(self, t: float, w_b: F64, f_b: F64, dt: float) -> None:
         assert self.x is not None
         p = self.p
         g = self.g_n[2]
-        if abs(np.linalg.norm(f_b) - g) > p.accel_norm_gate * g:
-            self._log("accel", t, np.full(3, np.nan), np.nan, False)
-            return
         a_b = None
         comp = "airspeed" if self.kind == "mekf-air" else p.accel_compensation
         if comp == "airspeed" and self.v_air_b is not None:
             a_b = np.cross(w_b - self.x.bg, self.v_air_b)
         elif comp == "gnss" and self.a_gnss_n is not None:
             a_b = dcm_from_quat(self.x.q_nb).T @ self.a_gnss_n
+        if self.f_bar is not None:
+            # the mean of the compensated specific force is the gravity measurement
+            f_c = f_b if a_b is None else f_b - a_b
+            self.f_bar = self.f_bar + lowpass_gain(dt, p.accel_lowpass) * (f_c - self.f_bar)
+            f_b, a_b = self.f_bar, None
+        if abs(np.linalg.norm(f_b) - g) > p.accel_norm_gate * g:
+            self._log("accel", t, np.full(3, np.nan), np.nan, False)
+            return
         h, H = obs.specific_force(self.layout, self.x, self.g_n, a_b)
         self._fuse("accel", t, f_b - h, H, p.accel_sigma**2 * np.eye(3), p.gate_accel)
 
@@ -217,23 +260,65 @@ class EskfStreamer(Streamer):
                 self._first_mag = mag_b
             self._try_init()
             return
-        if self.p.mag_mode == "off":
+        mode = self.mag_fusion
+        if mode == "off":
             return
         if self.mag_n is None:
             self.mag_n = mag_reference(self.site, self.x.q_nb, mag_b)
-        if self.p.mag_mode == "3d":
+        p = self.p
+        if p.mag_lowpass > 0:
+            if self.m_bar is None:
+                self.m_bar = np.array(mag_b, dtype=float)
+            else:
+                self.m_bar = self.m_bar + lowpass_gain(t - self.t_mbar, p.mag_lowpass) * (mag_b - self.m_bar)
+            self.t_mbar = t
+            mag_b = self.m_bar
+        if self._mag_disturbed(mag_b):
+            self._log("mag", t, np.full(3 if mode == "3d" else 1, np.nan), np.nan, False)
+            return
+        if mode == "3d":
             h, H = obs.magnetometer(self.layout, self.x, self.mag_n)
             self._fuse("mag", t, mag_b - h, H, self.p.mag_sigma**2 * np.eye(3), self.p.gate_mag)
             return
-        # Heading only: tilt-compensate with the current roll/pitch estimate.
+        sigma = self.p.mag_sigma / max(float(np.hypot(self.mag_n[0], self.mag_n[1])), 1e-9)
+        if p.heading_model == "vertical":
+            # The field's heading in the nav frame against the reference's; a correction
+            # about the nav vertical only: H_att = (C_bn e3)^T, the third row of C_nb.
+            C = dcm_from_quat(self.x.q_nb)
+            m_n = C @ mag_b
+            psi = float(np.arctan2(self.mag_n[1], self.mag_n[0]) - np.arctan2(m_n[1], m_n[0]))
+            H = np.zeros((1, self.layout.dim))
+            H[0, self.layout.sl("att")] = C[2]
+            nu = np.array([(psi + np.pi) % (2 * np.pi) - np.pi])
+            self._fuse("mag", t, nu, H, np.array([[sigma**2]]), self.p.gate_mag)
+            return
+        # Heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate.
         roll, pitch, _ = euler_from_quat(self.x.q_nb)
         m_h = dcm_from_quat(quat_from_euler([roll, pitch, 0.0])) @ mag_b
         decl = float(np.arctan2(self.mag_n[1], self.mag_n[0]))
         psi_m = decl - np.arctan2(m_h[1], m_h[0])
         h, H = obs.heading(self.layout, self.x)
         nu = np.array([(psi_m - h[0] + np.pi) % (2 * np.pi) - np.pi])
-        sigma = self.p.mag_sigma / max(float(np.hypot(self.mag_n[0], self.mag_n[1])), 1e-9)
         self._fuse("mag", t, nu, H, np.array([[sigma**2]]), self.p.gate_mag)
+
+    def _mag_disturbed(self, mag_b: F64) -> bool:
+        """The magnetic disturbance checks (mag_norm_gate, mag_dip_gate) on the field to be
+        fused, hard iron removed when it is a state."""
+        p = self.p
+        if p.mag_norm_gate <= 0 and p.mag_dip_gate <= 0:
+            return False
+        assert self.x is not None and self.mag_n is not None
+        m = mag_b - self.x.bm if self.x.bm is not None else mag_b
+        r = self.mag_n
+        r_norm = float(np.linalg.norm(r))
+        if p.mag_norm_gate > 0 and abs(float(np.linalg.norm(m)) - r_norm) > p.mag_norm_gate * r_norm:
+            return True
+        if p.mag_dip_gate > 0:
+            m_n = dcm_from_quat(self.x.q_nb) @ m
+            dip = np.arctan2(m_n[2], np.hypot(m_n[0], m_n[1]))
+            if abs(float(dip - np.arctan2(r[2], np.hypot(r[0], r[1])))) > p.mag_dip_gate:
+                return True
+        return False
 
     def _gnss(self, t: float, v_n: F64) -> None:
         if self.t_gnss is not None and self.v_gnss is not None and t > self.t_gnss:
@@ -334,14 +419,30 @@ class _EskfEstimator(Estimator):
         return EskfStreamer(self.name, self.kind, self.params, site, initial, has)
 
 
+#: [mekf]'s defaults for a 9-D AHRS in the field (handheld, robots, vehicles; BROAD-type
+#: motion): gravity and field as means in an almost inertial frame (3 s, 9 s, VQF's time
+#: constants), rate-proportional gyro noise, heading-only magnetometer about the vertical
+#: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg).
+MEKF_FIELD = EskfParams(
+    accel_lowpass=3.0,
+    gyro_scale_noise=1e-3,
+    mag_3d_needs_site=True,
+    heading_model="vertical",
+    mag_lowpass=9.0,
+    mag_norm_gate=0.1,
+    mag_dip_gate=float(np.radians(10.0)),
+)
+
+
 class Mekf(_EskfEstimator):
     """[mekf] error-state EKF: attitude error and gyro bias; accelerometer (gravity, gated)
-    and magnetometer. Reference implementation."""
+    and magnetometer. Reference implementation. Defaults: :data:`MEKF_FIELD`."""
 
     name = "mekf"
     kind = "mekf"
     requires = frozenset({"imu"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
+    default_params = MEKF_FIELD
 
 
 class MekfAir(_EskfEstimator):

@@ -49,7 +49,16 @@ class EskfParams:
     Accelerometer as a gravity measurement ([mekf], [mekf-air], [ekf7]): accel_sigma m/s^2
     per axis (noise plus unmodelled acceleration); fused only when ``| |f| - g | <
     accel_norm_gate * g``; accel_compensation: "none", "gnss" (GNSS velocity differences)
-    or "airspeed" (``w x V_air`` from pitot and vanes, SPEC 3.2.2).
+    or "airspeed" (``w x V_air`` from pitot and vanes, SPEC 3.2.2). accel_lowpass s: when
+    > 0 the (compensated) specific force is first low-passed with this time constant in a
+    gyro-compensated, almost inertial frame (the running mean is rotated into each new
+    body frame by the gyro increment), and that mean is the measurement, gated and fused
+    at every IMU sample: linear accelerations of bounded velocity average out there while
+    gravity does not (VQF's tau_acc; [mekf] default 3 s, 0: raw samples).
+    gyro_scale_noise 1/sqrt(Hz): attitude process noise proportional to the rate,
+    ``(gyro_scale_noise |w|)^2`` added to gyro_noise^2 (scale-factor and axis-misalignment
+    errors; 1e-3: about 0.1 % of the angle turned per second of rotation; error-state
+    filters only, [ekf7] and [ekf10] ignore it; [mekf] default 1e-3).
 
     Magnetometer: mag_mode "3d", "heading" (yaw only) or "off"; mag_sigma tesla per axis
     (noise only when the bias is a state, else noise plus residual hard iron);
@@ -57,6 +66,17 @@ class EskfParams:
     mag_mode "3d" adds magnetometer-bias states, as PX4's EKF2 and ArduPilot's EKF3 carry;
     0: none); mag_bias_noise tesla/s/sqrt(Hz), its random walk. [ins-wind] carries the
     states by default (1 uT, the AK8975 residual of SPEC 5.4), the other filters do not.
+    mag_3d_needs_site: with mag_mode "3d" and a site whose field is unknown (its dip then
+    comes from one sample and indoor fields are not uniform), fuse the heading only
+    ([mekf] default). heading_model: "yaw" (SPEC 3.3: ZYX yaw, ``H = [0, sin r, cos r] / cos p``,
+    singular at pitch +-90 deg) or "vertical" (the heading of the nav-frame field
+    ``C_nb m`` against the reference's, corrected by a rotation about the nav vertical
+    only, ``H_att = (C_bn e_3)^T``: no tilt terms, no singularity; [mekf] default).
+    mag_lowpass s: the magnetometer low-passed like the specific force (accel_lowpass),
+    the mean fused ([mekf] default 9 s, VQF's tau_mag; 0: raw samples). Disturbance
+    checks on the fused field m (0: off): rejected when ``| |m| - |m_ref| | >
+    mag_norm_gate |m_ref|`` or when its dip in the nav frame (estimated attitude) is more
+    than mag_dip_gate rad from the reference's ([mekf] defaults 0.1 and 10 deg, VQF's).
     GNSS velocity: gnss_sigma m/s per axis. Air data: air_mode "auto" (the vector when the
     flight has vanes, else airspeed and synthetic sideslip), "vector", "airspeed" or "off";
     tas_sigma m/s, vane_sigma rad, sideslip_sigma rad (synthetic zero sideslip;
@@ -78,8 +98,15 @@ class EskfParams:
     accel_sigma: float = 0.5
     accel_norm_gate: float = 0.15
     accel_compensation: Literal["none", "gnss", "airspeed"] = "none"
+    accel_lowpass: float = 0.0
+    gyro_scale_noise: float = 0.0
     mag_mode: Literal["3d", "heading", "off"] = "3d"
     mag_sigma: float = 1.5e-6
+    mag_3d_needs_site: bool = False
+    heading_model: Literal["yaw", "vertical"] = "yaw"
+    mag_lowpass: float = 0.0
+    mag_norm_gate: float = 0.0
+    mag_dip_gate: float = 0.0
     gnss_sigma: float = 0.2
     air_mode: Literal["auto", "vector", "airspeed", "off"] = "auto"
     tas_sigma: float = 0.5
@@ -102,6 +129,7 @@ class EskfParams:
         choices = {
             "accel_compensation": ("none", "gnss", "airspeed"),
             "mag_mode": ("3d", "heading", "off"),
+            "heading_model": ("yaw", "vertical"),
             "air_mode": ("auto", "vector", "airspeed", "off"),
         }
         for f in dataclasses.fields(self):
@@ -208,9 +236,16 @@ def load_params(path: str | Path, base: EskfParams | None = None) -> EskfParams:
 
 
 def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
-    """Parameters equal to a simulator SensorSuite's noise (for consistency studies)."""
+    """Parameters equal to a simulator SensorSuite's noise (for consistency studies).
+
+    The simulated sensors have white noise and no gyro scale-factor error: the filter then
+    fuses raw samples (accel_lowpass = mag_lowpass = 0, whose means are correlated from
+    sample to sample) and adds no rate-proportional process noise (gyro_scale_noise = 0)."""
     b = base or EskfParams()
     ch: dict[str, Any] = {
+        "accel_lowpass": 0.0,
+        "mag_lowpass": 0.0,
+        "gyro_scale_noise": 0.0,
         "gyro_noise": max(suite.gyro.noise_density, 1e-12),
         "gyro_bias_noise": suite.gyro.bias_rw,
         "accel_noise": max(suite.accel.noise_density, 1e-12),

@@ -113,7 +113,9 @@ class NominalState:
 class ProcessNoise:
     """Continuous noise densities: gyro rad/s/sqrt(Hz), gyro bias rad/s^2/sqrt(Hz),
     accelerometer m/s^2/sqrt(Hz), horizontal and vertical wind m/s^2/sqrt(Hz),
-    accelerometer bias m/s^3/sqrt(Hz), magnetometer bias tesla/s/sqrt(Hz)."""
+    accelerometer bias m/s^3/sqrt(Hz), magnetometer bias tesla/s/sqrt(Hz); gyro_scale
+    1/sqrt(Hz): rate-proportional gyro noise, the attitude density becomes
+    ``gyro^2 + (gyro_scale |w - bg|)^2`` (scale-factor and misalignment errors)."""
 
     gyro: float
     gyro_bias: float
@@ -122,6 +124,7 @@ class ProcessNoise:
     wind_v: float = 0.0
     accel_bias: float = 0.0
     mag_bias: float = 0.0
+    gyro_scale: float = 0.0
 
 
 def attitude_transition(w: F64, dt: float) -> tuple[F64, F64]:
@@ -161,6 +164,8 @@ def predict(
     Phi[A, B] = phi12
     Q = np.zeros((n, n))
     sg2, sb2 = noise.gyro**2, noise.gyro_bias**2
+    if noise.gyro_scale > 0:
+        sg2 = sg2 + noise.gyro_scale**2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     Q[A, A] = (sg2 * dt + sb2 * dt**3 / 3.0) * np.eye(3)
     Q[A, B] = Q[B, A] = -sb2 * dt**2 / 2.0 * np.eye(3)
     Q[B, B] = sb2 * dt * np.eye(3)
