@@ -123,8 +123,10 @@ def read_record(group: h5py.Group, cls: Callable[..., T], where: str) -> T:
     for name, ds in group.items():
         if isinstance(ds, h5py.Dataset):
             kwargs[name] = ds[()]
-        else:
+        elif isinstance(ds, h5py.Group):
             kwargs[name] = {k: _plain(v) for k, v in ds.attrs.items()}
+        else:  # h5py gives None for an object whose header is damaged
+            raise StoreError(f"{where}/{name}: unreadable object (corrupt file?)")
     for k, v in group.attrs.items():
         kwargs[k] = _plain(v)
     try:
@@ -186,16 +188,21 @@ def load_flight(path: str | os.PathLike[str]) -> Flight:
         with open_h5(path, FLIGHT_FORMAT, (FLIGHT_VERSION,)) as f:
             if "imu" not in f:
                 raise StoreError(f"{path}: no 'imu' group: a Flight needs an IMU stream")
-            parts = {
-                name: read_record(f[name], cls, f"{path}:/{name}")
-                for name, cls in _FLIGHT_PARTS.items()
-                if name in f
-            }
+            parts = {}
+            for name, cls in _FLIGHT_PARTS.items():
+                if name not in f:
+                    continue
+                group = f[name]
+                if not isinstance(group, h5py.Group):
+                    raise StoreError(f"{path}:/{name}: expected a group, found {type(group).__name__}")
+                parts[name] = read_record(group, cls, f"{path}:/{name}")
             meta = {k: _plain(v) for k, v in f["meta"].attrs.items()} if "meta" in f else {}
             return Flight(**parts, meta=meta)
-    except (KeyError, RuntimeError, OSError) as exc:
-        if isinstance(exc, StoreError):
-            raise
-        raise StoreError(f"{path}: unreadable contents ({exc})") from None
+    except (StoreError, MemoryError):
+        raise
     except FlightError as exc:
         raise FlightError(f"{path}:{exc.field}", exc.expected, exc.found) from None
+    except Exception as exc:
+        # h5py meets a damaged file with whatever it hits first (KeyError, OSError,
+        # RuntimeError, ValueError, UnicodeDecodeError, ...): one error naming the file.
+        raise StoreError(f"{path}: unreadable contents ({type(exc).__name__}: {exc})") from None

@@ -144,8 +144,12 @@ def _hdf5_format(p: Path) -> str:
             if isinstance(f.get("imu_gyr"), h5py.Dataset):
                 return "broad"
             keys = sorted(f.keys())[:8]
-    except OSError as exc:
-        raise LogFormatError(p, f"not a readable HDF5 file (truncated or corrupt?): {exc}") from None
+    except MemoryError:
+        raise
+    except Exception as exc:  # h5py: OSError, KeyError, RuntimeError, ... on a damaged file
+        raise LogFormatError(
+            p, f"not a readable HDF5 file (truncated or corrupt?): {type(exc).__name__}: {exc}"
+        ) from None
     raise LogFormatError(
         p, f"unknown HDF5 layout: expected root attribute format={FLIGHT_FORMAT!r} or a BROAD "
         f"'imu_gyr' dataset, found format={found!r} and datasets {keys}"

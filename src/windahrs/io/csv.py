@@ -11,9 +11,11 @@ be read without code. The format is documented in ``docs/csv-format.md``.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import tomllib
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,9 +94,18 @@ def _read_table(path: Path, time_col: str, columns: Sequence[str]) -> _Table:
 
     Empty cells are NaN (missing samples). A final row with too few fields (a file cut
     while being written) is dropped and flagged; any other malformed row is an error.
+
+    Well-formed numeric files are parsed by numpy (:func:`_read_table_fast`); anything
+    else (empty cells, text columns, quotes, a cut last row, errors) row by row here.
     """
     if not path.is_file():
         raise LogFormatError(path, "no such file")
+    fast = _read_table_fast(path, time_col, columns)
+    return fast if fast is not None else _read_table_rows(path, time_col, columns)
+
+
+def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Table:
+    """:func:`_read_table` row by row with the csv module: every file, every error."""
     try:
         with path.open(newline="", encoding="utf-8") as fh:
             # (line number, fields); blank lines (e.g. a trailing newline) carry no sample.
@@ -130,6 +141,47 @@ def _read_table(path: Path, time_col: str, columns: Sequence[str]) -> _Table:
         c: _parse_floats(path, c, v, linenos) for c, v in zip(columns, cells[1:], strict=True)
     }
     return _Table(path, time, values, dropped)
+
+
+def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Table | None:
+    """The table of a well-formed, all-numeric CSV file, parsed in C by ``numpy.loadtxt``
+    (about 10 times faster than row by row: 1.5 s for an hour of 200 Hz IMU); None for any
+    other file, which :func:`_read_table` then reads row by row with its exact rules and
+    error messages.
+
+    Same result as the row-by-row reader: the header is the first line, every row has as
+    many fields as the header (else numpy raises and the slow path reports the line), blank
+    lines are skipped, integer time stamps stay int64 (decimal ones become float64).
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+    first, sep, body = text.partition("\n")
+    if not sep or not first.strip() or '"' in text:  # quoting: the csv module's rules
+        return None
+    header = [h.strip() for h in first.split(",")]
+    wanted = [time_col, *columns]
+    if any(c not in header for c in wanted):
+        return None
+    idx = [header.index(c) for c in wanted]
+    table = None
+    for time_type in (np.int64, np.float64):
+        dtype = np.dtype([(f"f{i}", time_type if i == idx[0] else np.float64) for i in range(len(header))])
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # "input contained no data": the slow path says so
+                table = np.loadtxt(io.StringIO(body), delimiter=",", dtype=dtype, comments=None, ndmin=1)
+            break
+        except ValueError:
+            continue
+    if table is None or len(table) == 0:
+        return None
+    time = np.ascontiguousarray(table[f"f{idx[0]}"])
+    if time.dtype.kind == "f" and not np.isfinite(time).all():
+        return None  # the slow path names the line of the bad stamp
+    values = {c: np.ascontiguousarray(table[f"f{i}"]) for c, i in zip(columns, idx[1:], strict=True)}
+    return _Table(path, time, values, False)
 
 
 def _parse_time(path: Path, name: str, cells: list[str], linenos: list[int]) -> NDArray[Any]:
@@ -213,7 +265,8 @@ def read_alfa(
     imu           ``mavros-imu-data_raw.csv`` (angular_velocity, linear_acceleration; ROS FLU
                   body -> FRD: x, -y, -z)
     mag           ``mavros-imu-mag.csv`` (magnetic_field, FLU -> FRD; x ``mag_tesla_per_unit``)
-    gnss          ``mavros-global_position-raw-gps_vel.csv`` (twist.linear, ENU -> NED)
+    gnss          ``mavros-global_position-raw-gps_vel.csv`` (twist.linear, ENU -> NED; see
+                  "vertical" below)
     air           ``mavros-nav_info-airspeed.csv`` (measured) else ``mavros-vfr_hud.csv``
                   (airspeed); ArduPilot's equivalent airspeed used as TAS (``air.tas_is_eas``)
     reference     ``mavros-imu-data.csv`` (orientation x, y, z, w: ENU/FLU -> NED/FRD), kind
@@ -227,6 +280,22 @@ def read_alfa(
     the air. A wind-triangle check on the ALFA sequence agrees (ground speed peaks flying
     south, with the negated vector pointing south). Pass False for later mavros recordings.
     mag_tesla_per_unit: see :data:`MAVROS_MAG_TESLA_PER_UNIT`.
+
+    Vertical GNSS velocity: mavros builds ``global_position/raw/gps_vel`` from GPS_RAW_INT,
+    which carries ground speed and course only, and leaves ``twist.linear.z`` at 0. That 0
+    is not a measurement, but the Flight NaN policy makes a row with any NaN a missing
+    sample, so a NaN there would drop every GNSS sample. The reader keeps the 0 as logged
+    and sets ``meta["gnss.vertical_measured"]`` (False when the whole column is exactly 0).
+    On the ALFA sequence the aircraft climbs and sinks at 1.3-1.7 m/s RMS (up to 8 m/s).
+
+    Data quality, passed through as logged (the reader does not correct data): the ALFA
+    magnetometer (ArduPilot's RAW_IMU field, after its own offsets) has |B| ~ 50 uT and the
+    right frame, but a residual body-frame offset of about (-9, -3, +3) uT that grows with
+    throttle (x: -7 uT below 20 % throttle, -17 uT at 60-80 %; -1 uT after the engine
+    failure), i.e. uncompensated motor interference. Against a 18 uT horizontal field that
+    is a heading error of up to ~30 deg, so magnetometer updates gated for a calibrated
+    sensor are rejected. The reference yaw is true heading (ArduPilot applies the
+    declination, about -9.5 deg here); the flight has no ``site.mag_n``.
 
     Time: ``%time`` (ROS receive time, ns) minus the earliest ``%time`` of the files read
     (``meta["start_time_ns"]``). Raises LogFormatError (no such directory, missing IMU file
@@ -293,6 +362,9 @@ def read_alfa(
         if "gnss" in tables:
             t, v = sec("gnss")
             gnss = GnssStream(t=t, v_n=vec_enu_to_ned(finite_rows(_stack(v, _ALFA_TWIST))))
+            # mavros fills z with 0 (no vertical speed in GPS_RAW_INT): flag, do not invent.
+            up = gnss.v_n[:, 2]
+            meta["gnss.vertical_measured"] = not bool(np.all(up[np.isfinite(up)] == 0.0))
         if "air" in tables:
             t, v = sec("air")
             meta["air.file"] = str(air_file)

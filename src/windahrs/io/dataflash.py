@@ -66,6 +66,8 @@ _MILLIGAUSS = 1e-7  # tesla per milligauss
 _US = 1e-6
 _HEAD = b"\xa3\x95\x80"  # every binary DataFlash log opens with an FMT message
 _GPS_3D_FIX = 3
+#: ``TimeUS`` beyond this (2**53 us, 285 years since boot) is a corrupt stamp, not a time.
+_MAX_TIME_US = 2**53
 
 #: Fields read from each message (the first column of each row is the message name).
 _FIELDS: dict[str, tuple[str, ...]] = {
@@ -104,7 +106,7 @@ def read_dataflash(
     with captured_output() as chatter:
         log = _open(p)
         try:
-            rows, params = guard(
+            rows, params, bad_time = guard(
                 p, "unreadable DataFlash contents", lambda: _collect(log, instance, core)
             )
         finally:
@@ -112,7 +114,10 @@ def read_dataflash(
                 log.close()
     imu_rows = rows.get("IMU", [])
     if not imu_rows:
-        raise LogFormatError(p, "no 'IMU' messages (the IMU data a Flight needs); truncated?")
+        dropped = f" ({bad_time} messages with a corrupt TimeUS dropped)" if bad_time else ""
+        raise LogFormatError(
+            p, f"no 'IMU' messages (the IMU data a Flight needs); truncated?{dropped}"
+        )
     t0 = min(min(row[0] for row in r) for r in rows.values())
     meta: dict[str, Any] = {
         "source": p.name,
@@ -120,6 +125,8 @@ def read_dataflash(
         "start_time_us": t0,
         "dataflash.parser_messages": len(chatter.lines),
     }
+    if bad_time:
+        meta["dataflash.dropped_bad_time"] = bad_time
     meta.update(params)
 
     with flight_errors_name(p):
@@ -162,11 +169,13 @@ def _open(p: Path) -> Any:
     return guard(p, "not a readable DataFlash log (truncated or corrupt?)", lambda: cls(str(p)))
 
 
-def _collect(log: Any, instance: int, core: int) -> tuple[_Rows, dict[str, float]]:
-    """One pass over the log: rows ``(TimeUS, values)`` per message type (the types seen)
-    and the parameters kept."""
+def _collect(log: Any, instance: int, core: int) -> tuple[_Rows, dict[str, float], int]:
+    """One pass over the log: rows ``(TimeUS, values)`` per message type (the types seen),
+    the parameters kept, and how many rows were dropped for a corrupt ``TimeUS`` (negative
+    or beyond :data:`_MAX_TIME_US`)."""
     rows: _Rows = {k: [] for k in _FIELDS}
     params: dict[str, float] = {}
+    bad_time = 0
     while True:
         m = log.recv_match(type=list(DATAFLASH_MESSAGES))
         if m is None:
@@ -184,9 +193,13 @@ def _collect(log: Any, instance: int, core: int) -> tuple[_Rows, dict[str, float
             continue
         if "C" in cols and int(m.C) != core:
             continue
+        t_us = int(m.TimeUS)
+        if not 0 <= t_us <= _MAX_TIME_US:
+            bad_time += 1
+            continue
         vals = tuple(_num(getattr(m, f)) for f in _FIELDS[name])
-        rows[name].append((int(m.TimeUS), vals))
-    return {k: v for k, v in rows.items() if v}, params
+        rows[name].append((t_us, vals))
+    return {k: v for k, v in rows.items() if v}, params, bad_time
 
 
 def _num(v: Any) -> float:

@@ -78,8 +78,28 @@ ULOG_TOPICS: tuple[str, ...] = (
 _REL_INVALID = 0x7FFFFFFF
 _GAUSS = 1e-4  # tesla per gauss
 _US = 1e-6
+#: Reads without progress after which a ULog parse is stopped (see _ProgressFile).
+_IDLE_READS = 300_000
 
-Data = dict[str, NDArray[Any]]
+
+class _MissingField(KeyError):
+    """A topic lacks a field the reader needs (a corrupt or foreign format definition)."""
+
+    def __init__(self, topic: str, field: str) -> None:
+        super().__init__(field)
+        self.topic = topic
+        self.field = field
+
+
+class Data(dict[str, NDArray[Any]]):
+    """One topic instance's fields; a missing field raises :class:`_MissingField`."""
+
+    def __init__(self, topic: str, data: dict[str, NDArray[Any]]) -> None:
+        super().__init__(data)
+        self.topic = topic
+
+    def __missing__(self, key: str) -> NDArray[Any]:
+        raise _MissingField(self.topic, key)
 
 
 def read_ulog(
@@ -102,11 +122,11 @@ def read_ulog(
         raise LogFormatError(p, "no such file")
     from pyulog import ULog  # optional dependency (extra "logs")
 
-    with captured_output() as chatter:
+    with captured_output() as chatter, _ProgressFile(p) as fh:
         ulog = guard(
             p,
             "not a readable ULog file (truncated or corrupt?)",
-            lambda: ULog(str(p), list(ULOG_TOPICS)),
+            lambda: ULog(fh, list(ULOG_TOPICS)),
         )
     topics = _Topics(ulog, multi_id)
     t0 = int(ulog.start_timestamp)
@@ -123,28 +143,91 @@ def read_ulog(
     for key in ("sys_name", "ver_hw", "ver_sw"):
         if key in ulog.msg_info_dict:
             meta[f"ulog.{key}"] = str(ulog.msg_info_dict[key])
+    bad_params = 0
     for name, value in sorted(ulog.initial_parameters.items()):
         if name.startswith("EKF2_"):
-            meta[f"param.{name}"] = param_float(value)
+            try:
+                meta[f"param.{name}"] = param_float(value)
+            except (TypeError, ValueError):  # a corrupt parameter type gives bytes
+                bad_params += 1
+    if bad_params:
+        meta["ulog.unreadable_parameters"] = bad_params
 
     sc = topics.get("sensor_combined")
-    if sc is None or len(sc["timestamp"]) == 0:
+    if sc is None or len(sc.get("timestamp", ())) == 0:
         hint = " (the file holds no data messages: truncated?)" if not ulog.data_list else ""
         raise LogFormatError(p, f"no 'sensor_combined' topic (the IMU data a Flight needs){hint}")
     meta["imu.topic"] = topics.used["sensor_combined"]
 
-    with flight_errors_name(p):
-        imu = _imu(sc, t0, meta)
-        flight = Flight(
-            imu=imu,
-            mag=_mag(topics, sc, t0, meta),
-            gnss=_gnss(topics, t0, meta),
-            air=_air(topics, t0, meta, air_topic),
-            reference=_reference(topics, t0, meta),
-            ref_wind=_wind(topics, t0, meta),
-            meta=meta,
-        )
+    try:
+        with flight_errors_name(p):
+            imu = _imu(sc, t0, meta)
+            flight = Flight(
+                imu=imu,
+                mag=_mag(topics, sc, t0, meta),
+                gnss=_gnss(topics, t0, meta),
+                air=_air(topics, t0, meta, air_topic),
+                reference=_reference(topics, t0, meta),
+                ref_wind=_wind(topics, t0, meta),
+                meta=meta,
+            )
+    except _MissingField as exc:
+        raise LogFormatError(
+            p, f"topic '{exc.topic}' has no field '{exc.field}' (corrupt or unknown message format)"
+        ) from None
     return flight
+
+
+class _NoProgress(RuntimeError):
+    """The parser kept reading without getting further into the file."""
+
+
+class _ProgressFile:
+    """The log file as pyulog reads it, failing once the parser stops making progress.
+
+    pyulog (1.3) skips a corrupt message header by seeking back by the message size it
+    asked for, not by the bytes it got: near the end of a file that lands before where it
+    started, and it reads the same bytes forever. Here every read that does not get past
+    the furthest offset reached so far counts, and :data:`_IDLE_READS` of them in a row
+    raise :class:`_NoProgress` (a legitimate resynchronisation byte by byte re-reads at
+    most 2 x 65538 times: 64 kB is the largest ULog message).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._fh = path.open("rb")
+        self._pos = 0
+        self._furthest = 0
+        self._idle = 0
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._fh.read(size)
+        self._pos += len(data)
+        if self._pos > self._furthest:
+            self._furthest, self._idle = self._pos, 0
+        else:
+            self._idle += 1
+            if self._idle > _IDLE_READS:
+                raise _NoProgress(
+                    f"the parser re-read the bytes before offset {self._furthest} "
+                    f"{self._idle} times without getting further (corrupt message headers)"
+                )
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self._pos = self._fh.seek(offset, whence)
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> _ProgressFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._fh.close()
 
 
 class _Topics:
@@ -153,7 +236,7 @@ class _Topics:
     def __init__(self, ulog: Any, multi_id: int) -> None:
         self._by_name: dict[str, dict[int, Data]] = {}
         for d in ulog.data_list:
-            self._by_name.setdefault(d.name, {})[int(d.multi_id)] = d.data
+            self._by_name.setdefault(d.name, {})[int(d.multi_id)] = Data(d.name, d.data)
         self._multi_id = multi_id
         self.used: dict[str, str] = {}
 
