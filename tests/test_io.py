@@ -246,6 +246,27 @@ def test_alfa_frames_against_physics() -> None:
     assert cos > 0.7
 
 
+def test_alfa_gnss_vertical_flag_and_mag_offset() -> None:
+    f = read_alfa(require_data("alfa", ALFA_SEQ))
+    assert f.gnss is not None and f.mag is not None and f.reference is not None
+    # mavros raw/gps_vel has no vertical speed: the logged 0 is kept and flagged.
+    assert f.meta["gnss.vertical_measured"] is False
+    assert np.all(f.gnss.v_n[:, 2] == 0.0)
+    # The magnetometer is passed through as logged: fitting m_b = C_nb^T m_n + b over the
+    # flight leaves ~2 uT RMS (frame and scale right) with a ~10 uT body offset (motor
+    # interference, documented in read_alfa), which the reader must not remove.
+    q_bn = f.reference.q_nb[nearest(f.reference.t, f.mag.t)] * np.array([1.0, -1, -1, -1])
+    c_bn = np.stack([quat_rotate(q_bn, e) for e in np.eye(3)], axis=2)  # C_nb^T per row
+    a = np.zeros((3 * len(f.mag.t), 6))
+    a[:, :3] = c_bn.reshape(-1, 3)
+    a[:, 3:] = np.tile(np.eye(3), (len(f.mag.t), 1))
+    x, *_ = np.linalg.lstsq(a, f.mag.mag_b.reshape(-1), rcond=None)
+    rms = np.sqrt(np.mean((f.mag.mag_b.reshape(-1) - a @ x) ** 2))
+    assert rms < 3e-6
+    assert 5e-6 < np.linalg.norm(x[3:]) < 20e-6
+    assert 40e-6 < np.linalg.norm(x[:3]) < 55e-6
+
+
 # --- generic CSV -------------------------------------------------------------------------
 
 
