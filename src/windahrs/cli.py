@@ -105,10 +105,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         raise UsageError(f"--duration: expected > 0 s, found {args.duration}")
     cases = default_cases(names())
     t0 = time.perf_counter()
-    with tqdm(total=len(cases), desc="reproduce", unit="case", disable=None, file=sys.stderr) as bar:
+    with tqdm(total=len(cases) * runs, desc="reproduce", unit="run", disable=None, file=sys.stderr) as bar:
 
-        def step(label: str) -> None:
-            bar.set_postfix_str(label)
+        def step(label: str, run: int) -> None:
+            bar.set_postfix_str(f"case {bar.n // runs + 1}/{len(cases)} {label}, run {run}/{runs}")
             bar.update(1)
 
         res = run_reproduction(runs, duration=args.duration, cases=cases, progress=step, bound_fn=_bound_fn())

@@ -78,11 +78,13 @@ def default_cases(available: Sequence[str]) -> list[Case]:
 @dataclass
 class ReproductionResult:
     """``cases``: JSON-ready rows (the results.json schema); ``errors``: per case label,
-    Euler errors (runs, N, 3) in deg; ``bounds``: per (wind, model) the PCRB std (N, 3)
-    in deg; ``meta``: runs, duration, timings."""
+    Euler errors (runs, N, 3) in deg; ``nees``: per case label of a physically tuned
+    filter, the attitude and gyro-bias NEES (runs, N) of each run; ``bounds``: per (wind,
+    model) the PCRB std (N, 3) in deg; ``meta``: runs, duration, timings."""
 
     cases: list[dict[str, Any]] = field(default_factory=list)
     errors: dict[str, F64] = field(default_factory=dict)
+    nees: dict[str, F64] = field(default_factory=dict)
     bounds: dict[str, F64] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
 
@@ -117,13 +119,14 @@ def run_reproduction(
     *,
     duration: float = 20.0,
     cases: Sequence[Case] | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str, int], None] | None = None,
     bound_fn: Callable[[Sequence[Flight], str], F64 | None] | None = None,
 ) -> ReproductionResult:
     """Run every case on ``runs`` flights per wind speed.
 
     ``bound_fn(flights, model)`` returns the PCRB attitude std (N, 3) in deg (body axes)
     averaged over the flights, for ``model`` "gravity" or "ins"; None skips the ratios.
+    ``progress(case_label, run)`` is called after each estimator run (run 1..runs).
     """
     if runs < 1:
         raise ValueError(f"runs: expected >= 1, found {runs}")
@@ -142,8 +145,6 @@ def run_reproduction(
         bounds: dict[str, F64 | None] = {}
         for c in (c for c in cases if c.wind == w):
             key = case_key(c)
-            if progress:
-                progress(key)
             euler = np.empty((runs, n, 3))
             body = np.empty((runs, n, 3))
             total = np.empty((runs, n))
@@ -156,6 +157,8 @@ def run_reproduction(
                 total[r] = np.degrees(err.total)
                 if c.bound is not None and est.cov is not None:
                     nees.append(nees_attitude(est, fl))
+                if progress:
+                    progress(key, r + 1)
             res.errors[key] = euler
             steady = slice(n // 2, None)
             row: dict[str, Any] = {
@@ -180,6 +183,7 @@ def run_reproduction(
                     rmse_body = np.sqrt(np.mean(body[:, steady] ** 2, axis=(0, 1)))
                     row["pcrb_ratio"] = [float(v) for v in rmse_body / np.sqrt(np.mean(b[steady] ** 2, axis=0))]
             if nees:
+                res.nees[key] = np.array(nees)
                 avg = np.mean(nees, axis=0)
                 lo, hi = chi2_band(6, len(nees))
                 row["nees_in_band"] = float(np.mean((avg[steady] >= lo) & (avg[steady] <= hi)))
