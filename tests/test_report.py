@@ -169,6 +169,16 @@ def test_long_monte_carlo_figure_stays_small() -> None:
     assert png.startswith(PNG_SIGNATURE) and len(png) < MAX_PNG_BYTES
 
 
+def test_errors_in_degrees_draw_the_same_figure_as_in_radians() -> None:
+    """The axes are in degrees whichever unit the errors come in (the reproduction's are
+    in degrees, and were once labelled rad)."""
+    rng = np.random.default_rng(4)
+    err = _errors(rng, 3, 200, 0.5)
+    rad = error_vs_sample_png({"MEKF": err}, "t")
+    deg = error_vs_sample_png({"MEKF": np.degrees(err)}, "t", unit="deg")
+    assert rad == deg
+
+
 def test_percentiles_over_runs_match_numpy_nanpercentile() -> None:
     rng = np.random.default_rng(5)
     err = rng.standard_normal((9, 40, 3))
@@ -188,6 +198,8 @@ def test_figure_bad_input_names_the_field() -> None:
         error_vs_sample_png({"MEKF": np.zeros((10, 3))}, "t")
     with pytest.raises(ValueError, match=r"max_samples"):
         error_vs_sample_png({"MEKF": np.zeros((2, 10, 3))}, "t", max_samples=0)
+    with pytest.raises(ValueError, match=r"unit: expected 'rad' or 'deg', found 'grad'"):
+        error_vs_sample_png({"MEKF": np.zeros((2, 10, 3))}, "t", unit="grad")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"rmse_deg\['EKF'\]: expected shape \(5, 3\)"):
         error_vs_bound_png({"EKF": np.ones((4, 3))}, np.ones((5, 3)), "t")
     with pytest.raises(ValueError, match=r"curves\['a'\]: expected 3 column\(s\)"):

@@ -17,6 +17,7 @@ from windahrs.sim.wind import (
     dryden_psd,
     low_altitude_params,
     one_minus_cosine_gust,
+    random_walk_density,
     shear_mean_wind,
 )
 
@@ -154,6 +155,23 @@ def test_welch_psd_within_10_percent(long_runs: dict[str, np.ndarray]) -> None:
     ratio = (s[band] / dryden_psd(p, V_AIR, f[band])).mean(axis=0)
     print(f"Welch/analytic PSD {BAND[0]}-{BAND[1]} Hz, u,v,w = {np.round(ratio, 4)}")
     np.testing.assert_allclose(ratio, 1.0, atol=0.10)
+
+
+def test_random_walk_density_matches_the_short_time_increments() -> None:
+    """A filter's wind random walk: sigma sqrt(2 V / L), the short-time rate of change of
+    the first-order u channel (its increments over one 5-ms step, 200 000 steps)."""
+    p = _p50()
+    h, v = random_walk_density(p, V_AIR)
+    assert h == pytest.approx(p.sigma_u * math.sqrt(2 * V_AIR / p.L_u), rel=1e-12)
+    assert v == pytest.approx(p.sigma_w * math.sqrt(2 * V_AIR / p.L_w), rel=1e-12)
+    g = dryden_gusts(p, V_AIR, DT, 200_000, np.random.default_rng(3))
+    measured = np.std(np.diff(g[:, 0])) / math.sqrt(DT)
+    # 2 sigma^2 (1 - exp(-dt/T)) per step: 0.02 % below the random walk at dt/T = 3.7e-4;
+    # the sample std of 2e5 increments is within 0.5 % (3 sd)
+    assert measured == pytest.approx(h, rel=0.005)
+    assert random_walk_density(p, 0.0) == random_walk_density(p, 1.0)  # airspeed floored at 1 m/s
+    with pytest.raises(ValueError, match="airspeed"):
+        random_walk_density(p, -1.0)
 
 
 def test_initial_state_is_stationary() -> None:

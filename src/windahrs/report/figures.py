@@ -16,7 +16,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -51,24 +51,25 @@ def error_vs_sample_png(
     series: Mapping[str, ArrayLike],
     title: str,
     *,
-    degrees: bool = True,
+    unit: Literal["rad", "deg"] = "rad",
     max_samples: int | None = None,
 ) -> bytes:
     """Attitude error against sample index, one panel per axis (roll, pitch, yaw), as in
     the paper's error-vs-number-of-samples figures.
 
-    series: label -> errors in rad, shape (runs, N, 3) (N may differ between labels; NaN
+    series: label -> errors in ``unit`` (rad or deg), shape (runs, N, 3) (N may differ between labels; NaN
     marks missing samples); for each label the median over runs is drawn as a line and
     the 10-90 % spread over runs as a shaded band. Pass absolute errors to plot error
-    magnitudes. degrees: plot in deg (converted here) instead of rad. max_samples: plot
+    magnitudes. The axes are in degrees whatever ``unit`` is. max_samples: plot
     only the first max_samples samples. Returns PNG bytes.
     """
     if not series:
         raise ValueError("series: expected at least one labelled error array, found none")
     if max_samples is not None and (not isinstance(max_samples, int) or max_samples < 1):
         raise ValueError(f"max_samples: expected a positive int or None, found {max_samples!r}")
-    scale = math.degrees(1.0) if degrees else 1.0
-    unit = "deg" if degrees else "rad"
+    if unit not in ("rad", "deg"):
+        raise ValueError(f"unit: expected 'rad' or 'deg', found {unit!r}")
+    scale = math.degrees(1.0) if unit == "rad" else 1.0
     fig, axes = _new_figure(3)
     for k, (label, values) in enumerate(series.items()):
         err = _as_float(values, f"series[{label!r}]")
@@ -87,7 +88,7 @@ def error_vs_sample_png(
             xl, yl = _line(x, med[:, a], MAX_POINTS)
             ax.plot(xl, yl, color=color, linewidth=1.2, label=label)
     for a, ax in enumerate(axes):
-        ax.set_ylabel(f"{AXES[a]} error [{unit}]")
+        ax.set_ylabel(f"{AXES[a]} error [deg]")
         ax.axhline(0.0, color="0.5", linewidth=0.6, zorder=0)
     axes[-1].set_xlabel("sample index")
     _legend(fig, axes[0], title=f"median over runs, band {_BAND[0]:g}-{_BAND[1]:g} %")

@@ -83,11 +83,11 @@ def _figures(res: ReproductionResult) -> list[tuple[str, bytes, str]]:
         )
         if s:
             title = f"Paper Fig. {fig[-1]}: attitude error, wind {w:g} m/s"
-            figs.append((f"{fig}.png", error_vs_sample_png(s, title, degrees=False), title))
+            figs.append((f"{fig}.png", error_vs_sample_png(s, title, unit="deg"), title))
     s = _series(res, {"5 m/s | ekf": "EKF", "5 m/s | ukf": "UKF", "5 m/s | paper": "proposed (oracle wind)"})
     if s:
         title = "Paper Fig. 6: EKF, UKF and the proposed filter, wind 5 m/s"
-        figs.append(("fig6.png", error_vs_sample_png(s, title, degrees=False), title))
+        figs.append(("fig6.png", error_vs_sample_png(s, title, unit="deg"), title))
     for w in sorted({c["wind"] for c in res.cases}):
         s = _series(
             res,
@@ -95,7 +95,7 @@ def _figures(res: ReproductionResult) -> list[tuple[str, bytes, str]]:
         )
         if s:
             title = f"Modern estimators against the paper's, wind {w:g} m/s"
-            figs.append((f"estimators_{w:g}.png", error_vs_sample_png(s, title, degrees=False), title))
+            figs.append((f"estimators_{w:g}.png", error_vs_sample_png(s, title, unit="deg"), title))
         for model in ("ins", "gravity"):
             bkey = f"{w:g} m/s | {model}"
             if bkey not in res.bounds:

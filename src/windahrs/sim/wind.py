@@ -37,6 +37,7 @@ __all__ = [
     "dryden_gusts",
     "dryden_psd",
     "low_altitude_params",
+    "random_walk_density",
     "one_minus_cosine_gust",
     "shear_mean_wind",
 ]
@@ -479,6 +480,24 @@ def dryden_psd(params: DrydenParams, airspeed: float, freq_hz: ArrayLike) -> F64
         x2 = (omega * t) ** 2
         out[:, col] = 2.0 * sigma**2 * t * (1.0 + 3.0 * x2) / (1.0 + x2) ** 2
     return out
+
+
+def random_walk_density(params: DrydenParams, airspeed: float) -> tuple[float, float]:
+    """Random-walk densities (horizontal, vertical), m/s^2/sqrt(Hz), that match Dryden
+    turbulence over short times: the wind states of a filter that models the wind as a
+    random walk (``EskfParams.wind_noise``, ``wind_noise_vertical``).
+
+    A component of intensity sigma and correlation time ``T = L / V`` changes by
+    ``sigma sqrt(2 dt / T)`` over a short dt (exact for the first-order longitudinal
+    filter), i.e. a density ``sigma sqrt(2 V / L)``. Horizontal: the larger of the u and v
+    values; vertical: the w value. Airspeed is floored at 1 m/s as in :func:`dryden_gusts`.
+    """
+    v_air = _finite_float("airspeed", airspeed)
+    if v_air < 0.0:
+        raise _fail("airspeed", "a speed >= 0 m/s", airspeed)
+    v_air = max(v_air, _MIN_AIRSPEED)
+    h = max(params.sigma_u * np.sqrt(2.0 * v_air / params.L_u), params.sigma_v * np.sqrt(2.0 * v_air / params.L_v))
+    return float(h), float(params.sigma_w * np.sqrt(2.0 * v_air / params.L_w))
 
 
 # --------------------------------------------------------------------------- discrete gust
