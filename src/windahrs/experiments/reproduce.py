@@ -208,6 +208,11 @@ def run_reproduction(
     return res
 
 
+def _lt(a: float, b: float) -> str:
+    """The relation of a to b as printed in a claim's numbers."""
+    return "<" if a < b else ">="
+
+
 def _rms_axes(x: F64) -> list[float]:
     return [float(v) for v in np.sqrt(np.mean(x**2, axis=(0, 1)))]
 
@@ -244,7 +249,7 @@ def claims(res: ReproductionResult) -> list[dict[str, Any]]:
                 {
                     "claim": f"ordering at {w:g} m/s: no wind < considering wind < not considering wind",
                     "holds": bool(ta < tb < td),
-                    "numbers": f"total RMSE {ta:.2f} < {tb:.2f} < {td:.2f} deg",
+                    "numbers": f"total RMSE {ta:.2f} {_lt(ta, tb)} {tb:.2f} {_lt(tb, td)} {td:.2f} deg",
                 }
             )
         m = row(w, "paper:wind=mean")
