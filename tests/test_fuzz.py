@@ -22,7 +22,6 @@ Bounded and reproducible: ``derandomize=True``, no example database, 100 example
 
 from __future__ import annotations
 
-import math
 import signal
 import struct
 import tempfile
@@ -39,6 +38,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from conftest import data_dir
+from synthetic_logs import dataflash_bytes, ulog_bytes
 from windahrs.flight import Flight, FlightError
 from windahrs.io import LogFormatError, read_flight
 from windahrs.store import StoreError, load_flight, save_flight
@@ -89,89 +89,6 @@ class Seed:
 
 
 # --- seeds written here -------------------------------------------------------------------
-
-
-def ulog_bytes(n: int = 400) -> bytes:
-    """A small PX4 ULog (format version 1): IMU at 200 Hz, magnetometer, attitude, airspeed,
-    GPS velocity and wind, laid out as the ULog spec says (header, flag bits, info, parameter,
-    formats, add-logged and data messages)."""
-    out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 1_000_000))
-
-    def msg(kind: str, payload: bytes) -> None:
-        out.extend(struct.pack("<HB", len(payload), ord(kind)) + payload)
-
-    msg("B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
-    for kind, key, value in (("I", b"char[7] sys_name", b"windsim"),
-                             ("P", b"float EKF2_GYR_NOISE", struct.pack("<f", 0.015))):
-        msg(kind, bytes([len(key)]) + key + value)
-    formats = {
-        "sensor_combined": "uint64_t timestamp;float[3] gyro_rad;float[3] accelerometer_m_s2;",
-        "vehicle_magnetometer": "uint64_t timestamp;uint64_t timestamp_sample;float[3] magnetometer_ga;",
-        "vehicle_attitude": "uint64_t timestamp;float[4] q;",
-        "airspeed_validated": "uint64_t timestamp;float true_airspeed_m_s;",
-        "vehicle_gps_position": "uint64_t timestamp;float vel_n_m_s;float vel_e_m_s;float vel_d_m_s;"
-        "uint8_t vel_ned_valid;",
-        "wind": "uint64_t timestamp;float windspeed_north;float windspeed_east;",
-    }
-    for name, fields in formats.items():
-        msg("F", f"{name}:{fields}".encode())
-    for i, name in enumerate(formats):
-        msg("A", struct.pack("<BH", 0, i) + name.encode())
-    rng = np.random.default_rng(0)
-    for k in range(n):
-        t = 2_000_000 + 5_000 * k
-        w = 0.1 * rng.standard_normal(3)
-        f = np.array([0.0, 0.0, -9.8]) + 0.1 * rng.standard_normal(3)
-        msg("D", struct.pack("<HQ6f", 0, t, *w, *f))
-        if k % 4 == 0:
-            msg("D", struct.pack("<HQQ3f", 1, t + 10, t, 0.2, 0.02, 0.4))
-            c, s = math.cos(0.01 * k), math.sin(0.01 * k)
-            msg("D", struct.pack("<HQ4f", 2, t + 20, c, 0.0, 0.0, s))
-            msg("D", struct.pack("<HQf", 3, t + 30, 18.0))
-        if k % 20 == 0:
-            msg("D", struct.pack("<HQ3fB", 4, t + 40, 15.0, 1.0, -0.5, 1))
-            msg("D", struct.pack("<HQ2f", 5, t + 50, -3.0, 2.0))
-    return bytes(out)
-
-
-def dataflash_bytes(n: int = 200) -> bytes:
-    """A small binary ArduPilot DataFlash log: FMT messages (the documented 89-byte message
-    0x80), then PARM, IMU, MAG, GPS, ARSP, ATT, XKQ and XKF2 rows."""
-    specs = {  # name: (struct of the fields after the 3-byte header, columns)
-        "PARM": ("<Q16sf", "TimeUS,Name,Value", "QNf"),
-        "IMU": ("<QB6f", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ", "QBffffff"),
-        "MAG": ("<QB3h", "TimeUS,I,MagX,MagY,MagZ", "QBhhh"),
-        "GPS": ("<QBB3f", "TimeUS,I,Status,Spd,GCrs,VZ", "QBBfff"),
-        "ARSP": ("<QBf", "TimeUS,I,Airspeed", "QBf"),
-        "ATT": ("<Q3f", "TimeUS,Roll,Pitch,Yaw", "Qfff"),
-        "XKQ": ("<QB4f", "TimeUS,C,Q1,Q2,Q3,Q4", "QBffff"),
-        "XKF2": ("<QB2f", "TimeUS,C,VWN,VWE", "QBff"),
-    }
-    out = bytearray()
-
-    def put(msg_id: int, layout: str, *vals: Any) -> None:
-        out.extend(b"\xa3\x95" + bytes([msg_id]) + struct.pack(layout, *vals))
-
-    fmt_layout = "<BB4s16s64s"
-    put(0x80, fmt_layout, 0x80, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns")
-    ids = {}
-    for i, (name, (layout, cols, chars)) in enumerate(specs.items()):
-        ids[name] = 64 + i
-        put(0x80, fmt_layout, 64 + i, struct.calcsize(layout) + 3, name.encode(), chars.encode(),
-            cols.encode())
-    put(ids["PARM"], specs["PARM"][0], 100, b"EK3_GYRO_P_NSE", 0.015)
-    for k in range(n):
-        t = 5_000_000 + 10_000 * k
-        put(ids["IMU"], specs["IMU"][0], t, 0, 0.1, -0.2, 0.3, 0.5, -0.25, -9.7)
-        put(ids["ATT"], specs["ATT"][0], t + 1, 2.0, -1.0, 0.5 * k % 360)
-        put(ids["XKQ"], specs["XKQ"][0], t + 2, 0, 1.0, 0.0, 0.0, 0.0)
-        if k % 5 == 0:
-            put(ids["MAG"], specs["MAG"][0], t + 3, 0, 200, -40, 450)
-            put(ids["ARSP"], specs["ARSP"][0], t + 4, 0, 17.5)
-        if k % 20 == 0:
-            put(ids["GPS"], specs["GPS"][0], t + 5, 0, 3, 5.0, 53.0, -1.0)
-            put(ids["XKF2"], specs["XKF2"][0], t + 6, 0, -2.5, 1.5)
-    return bytes(out)
 
 
 def simulated_flight() -> Flight:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from conftest import require_data
+from synthetic_logs import ulog_bytes
 from windahrs.conventions import DEG, G0
 from windahrs.flight import (
     AirDataStream,
@@ -138,6 +139,21 @@ def test_ulog_duplicates_dropped_and_counted(tmp_path: Path) -> None:
     f = read_ulog(out)
     assert f.meta["imu.dropped_duplicates"] == 2
     assert len(f.imu.t) == len(sc.data["timestamp"]) - 2
+
+
+def test_ulog_multi_instance_topics_pick_the_asked_instance(tmp_path: Path) -> None:
+    """Two vehicle_magnetometer instances: multi_id picks one (meta names it); a topic
+    without that instance (here every other one) falls back to its lowest instance."""
+    path = tmp_path / "two_mags.ulg"
+    path.write_bytes(ulog_bytes(second_mag=True))
+    first, second = read_ulog(path), read_ulog(path, multi_id=1)
+    assert first.mag is not None and second.mag is not None
+    assert first.meta["mag.topic"] == "vehicle_magnetometer[0]"
+    assert second.meta["mag.topic"] == "vehicle_magnetometer[1]"
+    np.testing.assert_allclose(first.mag.mag_b[0], np.array([0.2, 0.02, 0.4]) * 1e-4, rtol=1e-6)
+    np.testing.assert_allclose(second.mag.mag_b[0], np.array([0.1, 0.0, 0.5]) * 1e-4, rtol=1e-6)
+    assert second.meta["imu.topic"] == "sensor_combined[0]"  # no instance 1: the lowest
+    np.testing.assert_array_equal(first.imu.f_b, second.imu.f_b)
 
 
 def test_ulog_missing_topic_names_file_and_topic(tmp_path: Path) -> None:
