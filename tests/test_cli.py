@@ -150,6 +150,27 @@ def test_compare_table_and_json(gusty_file: Path, capsys: pytest.CaptureFixture[
         assert r["rmse_total_deg"] >= r["rmse_tilt_deg"] * 0.99
 
 
+def test_low_rate_imu_is_warned_with_the_noise_to_set(
+    gusty_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A 10 Hz IMU (every 20th sample of the 200 Hz flight): compare says so on stderr with
+    the noise of docs/estimators.md; the 200 Hz flight gets no warning."""
+    import dataclasses
+
+    from windahrs.store import load_flight, save_flight
+
+    capsys.readouterr()
+    assert main(["compare", str(gusty_file), "--filters", "mekf"]) == 0
+    assert "IMU runs at" not in capsys.readouterr().err
+    f = load_flight(gusty_file)
+    imu = dataclasses.replace(f.imu, t=f.imu.t[::20], w_b=f.imu.w_b[::20], f_b=f.imu.f_b[::20])
+    slow = save_flight(dataclasses.replace(f, imu=imu), tmp_path / "slow.h5")
+    assert main(["compare", str(slow), "--filters", "mekf"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the IMU runs at 10 Hz" in err
+    assert "gyro_noise=0.018 and accel_noise=0.18" in err
+
+
 def test_experiment_command(capsys: pytest.CaptureFixture[str]) -> None:
     import json
 

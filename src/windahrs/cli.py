@@ -174,10 +174,16 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _read(path: Path) -> Flight:
-    """A flight file or a log/dataset the readers know."""
+    """A flight file or a log/dataset the readers know (a warning on stderr when its IMU
+    rate is too low for the default noise)."""
+    from windahrs.filters.params import imu_rate_warning
     from windahrs.io import read_flight
 
-    return read_flight(path)
+    flight = read_flight(path)
+    warning = imu_rate_warning(flight.imu.t)
+    if warning:
+        _note(f"warning: {warning}")
+    return flight
 
 
 def _score_line(sc: Score) -> str:
@@ -237,11 +243,12 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         return 0
     print(f"RMSE in deg against {rows[0].reference}{' (aligned)' if extra else ''}; from sample 50 | second half")
     axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
-    print(f"{'filter':<14}{axes}{axes}{'tilt':>8}{'total':>8}")
+    width = max(14, *(len(r.filter) + 1 for r in rows))
+    print(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}")
     for r in rows:
         a, b = r.rmse_from50_deg, r.rmse_steady_deg
         print(
-            f"{r.filter:<14}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
+            f"{r.filter:<{width}}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
             f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}"
         )
     return 0

@@ -28,7 +28,7 @@ from typing import Any, Literal
 
 from windahrs.conventions import DEG, G0
 
-__all__ = ["ARDUPILOT_MAP", "PX4_MAP", "EskfParams", "load_params", "matched_to"]
+__all__ = ["ARDUPILOT_MAP", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "imu_rate_warning", "load_params", "matched_to"]
 
 #: PX4 and ArduPilot filters use per-step noise at their prediction period; densities
 #: are that times sqrt(period). PX4 EKF2 predicts every 10 ms (EKF2_PREDICT_US default).
@@ -233,6 +233,40 @@ def load_params(path: str | Path, base: EskfParams | None = None) -> EskfParams:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
     return from_mapping(base or EskfParams(), data, where=str(p))
+
+
+#: Below this IMU rate (Hz) the default process noise is too small (see imu_rate_warning).
+LOW_IMU_RATE_HZ = 50.0
+
+
+def imu_rate_warning(t_imu: Any) -> str | None:
+    """A warning when the IMU times ``t_imu`` (N,) s run below :data:`LOW_IMU_RATE_HZ`.
+
+    The defaults model a >= 100 Hz IMU whose samples are means over their interval (as PX4
+    and ArduPilot log them). Point samples at a low rate (ROS/mavros ``imu/data_raw`` at
+    10 Hz, say) leave an integration error of about ``sigma_d dt / sqrt(3)`` per step, with
+    sigma_d the sample-to-sample change of the rate or specific force, far above the
+    default densities: the filters then trust the gyro too much and can diverge. The rule
+    of thumb in docs/estimators.md ("Low-rate IMUs") gives the densities to set instead."""
+    import numpy as np
+
+    t = np.asarray(t_imu, dtype=np.float64)
+    if t.size < 2:
+        return None
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if rate >= LOW_IMU_RATE_HZ:
+        return None
+    dt = 1.0 / rate
+    # sigma_d: 1 rad/s^2 of angular acceleration and 10 m/s^3 of jerk, times dt; the error
+    # sigma_d dt / sqrt(3) per step as a density: divided by sqrt(dt)
+    gyro = 1.0 * dt * dt / math.sqrt(3.0) / math.sqrt(dt)
+    accel = 10.0 * dt * dt / math.sqrt(3.0) / math.sqrt(dt)
+    return (
+        f"the IMU runs at {rate:.3g} Hz; the default noise assumes >= 100 Hz interval means and is far too "
+        f"small for point samples this sparse (the filters may diverge): for a manoeuvring vehicle set about "
+        f"gyro_noise={gyro:.2g} and accel_noise={accel:.2g}, e.g. --filter 'NAME:gyro_noise={gyro:.2g}:"
+        f"accel_noise={accel:.2g}' (docs/estimators.md, 'Low-rate IMUs')"
+    )
 
 
 def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
