@@ -120,6 +120,31 @@ def test_estimate_writes_an_estimate_and_prints_rmse(
     assert set(est.innovations) >= {"gnss", "mag", "air"}
 
 
+def test_damaged_estimate_file_gives_store_error(
+    gusty_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An estimate file whose innovations group holds a dataset, or cut short: one
+    StoreError naming the file, nothing else."""
+    import h5py
+
+    from windahrs.estimate import load_estimate
+    from windahrs.store import StoreError
+
+    out = tmp_path / "est.h5"
+    assert main(["estimate", str(gusty_file), "--filter", "mekf", "--out", str(out)]) == 0
+    data = out.read_bytes()
+    with h5py.File(out, "a") as f:
+        name = next(iter(f["innovations"]))
+        del f["innovations"][name]
+        f["innovations"][name] = [1.0, 2.0]
+    with pytest.raises(StoreError, match=r"est\.h5: unreadable estimate"):
+        load_estimate(out)
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(StoreError, match=r"cut\.h5"):
+        load_estimate(cut)
+
+
 def test_estimate_with_params_file_and_bad_names(
     gusty_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

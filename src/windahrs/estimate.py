@@ -155,7 +155,10 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
                 meta=dict(f["meta"].attrs.items()),
                 **arrays,
             )
-    except (KeyError, OSError) as exc:
-        if isinstance(exc, StoreError):
-            raise
-        raise StoreError(f"{path}: unreadable estimate ({exc})") from None
+    except (StoreError, MemoryError):
+        raise
+    except FlightError as exc:
+        raise FlightError(f"{path}:{exc.field}", exc.expected, exc.found) from None
+    except Exception as exc:
+        # as load_flight: h5py meets a damaged file with whatever it hits first
+        raise StoreError(f"{path}: unreadable estimate ({type(exc).__name__}: {exc})") from None

@@ -264,7 +264,7 @@ def imu_rate_warning(t_imu: Any) -> str | None:
     return (
         f"the IMU runs at {rate:.3g} Hz; the default noise assumes >= 100 Hz interval means and is far too "
         f"small for point samples this sparse (the filters may diverge): for a manoeuvring vehicle set about "
-        f"gyro_noise={gyro:.2g} and accel_noise={accel:.2g}, e.g. --filter 'NAME:gyro_noise={gyro:.2g}:"
+        f"gyro_noise={gyro:.2g} and accel_noise={accel:.2g}, i.e. the filter spec 'NAME:gyro_noise={gyro:.2g}:"
         f"accel_noise={accel:.2g}' (docs/estimators.md, 'Low-rate IMUs')"
     )
 
@@ -272,14 +272,20 @@ def imu_rate_warning(t_imu: Any) -> str | None:
 def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
     """Parameters equal to a simulator SensorSuite's noise (for consistency studies).
 
-    The simulated sensors have white noise and no gyro scale-factor error: the filter then
-    fuses raw samples (accel_lowpass = mag_lowpass = 0, whose means are correlated from
-    sample to sample) and adds no rate-proportional process noise (gyro_scale_noise = 0)."""
+    The simulated sensors have white noise, no gyro scale-factor error and an undisturbed
+    field: the filter then fuses raw samples (accel_lowpass = mag_lowpass = 0, whose means
+    are correlated from sample to sample), adds no rate-proportional process noise
+    (gyro_scale_noise = 0) and has no magnetic disturbance checks (mag_norm_gate =
+    mag_dip_gate = 0, mag_3d_needs_site off). heading_model is kept (it matters only with
+    mag_mode "heading")."""
     b = base or EskfParams()
     ch: dict[str, Any] = {
         "accel_lowpass": 0.0,
         "mag_lowpass": 0.0,
         "gyro_scale_noise": 0.0,
+        "mag_norm_gate": 0.0,
+        "mag_dip_gate": 0.0,
+        "mag_3d_needs_site": False,
         "gyro_noise": max(suite.gyro.noise_density, 1e-12),
         "gyro_bias_noise": suite.gyro.bias_rw,
         "accel_noise": max(suite.accel.noise_density, 1e-12),

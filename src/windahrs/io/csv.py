@@ -171,9 +171,11 @@ def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # "input contained no data": the slow path says so
+                # numpy < 2.? parses "0.005" as int64 0 with only a DeprecationWarning: a failure here
+                warnings.simplefilter("error", DeprecationWarning)
                 table = np.loadtxt(io.StringIO(body), delimiter=",", dtype=dtype, comments=None, ndmin=1)
             break
-        except ValueError:
+        except (ValueError, DeprecationWarning):
             continue
     if table is None or len(table) == 0:
         return None

@@ -122,7 +122,11 @@ def read_ulog(
         raise LogFormatError(p, "no such file")
     from pyulog import ULog  # optional dependency (extra "logs")
 
-    with captured_output() as chatter, _ProgressFile(p) as fh:
+    try:
+        progress_file = _ProgressFile(p)
+    except OSError as exc:  # unreadable (permissions, a directory, ...)
+        raise LogFormatError(p, f"cannot open: {exc.strerror or exc}") from None
+    with captured_output() as chatter, progress_file as fh:
         ulog = guard(
             p,
             "not a readable ULog file (truncated or corrupt?)",

@@ -487,17 +487,21 @@ def random_walk_density(params: DrydenParams, airspeed: float) -> tuple[float, f
     turbulence over short times: the wind states of a filter that models the wind as a
     random walk (``EskfParams.wind_noise``, ``wind_noise_vertical``).
 
-    A component of intensity sigma and correlation time ``T = L / V`` changes by
-    ``sigma sqrt(2 dt / T)`` over a short dt (exact for the first-order longitudinal
-    filter), i.e. a density ``sigma sqrt(2 V / L)``. Horizontal: the larger of the u and v
-    values; vertical: the w value. Airspeed is floored at 1 m/s as in :func:`dryden_gusts`.
+    With ``T = L / V``, a component's increments over a short dt have variance
+    ``2 (R(0) - R(dt))``: ``2 sigma^2 dt / T`` for the first-order longitudinal filter
+    (``R(tau) = sigma^2 e^(-tau/T)``) and ``3 sigma^2 dt / T`` for the second-order lateral
+    and vertical ones (``R(tau) = sigma^2 (1 - tau / 2T) e^(-tau/T)``), i.e. densities
+    ``sigma_u sqrt(2 V / L_u)`` and ``sigma_{v,w} sqrt(3 V / L_{v,w})`` (the high-frequency
+    asymptotes of :func:`dryden_psd`). Horizontal: the larger of the u and v values;
+    vertical: the w value. Airspeed is floored at 1 m/s as in :func:`dryden_gusts`.
     """
     v_air = _finite_float("airspeed", airspeed)
     if v_air < 0.0:
         raise _fail("airspeed", "a speed >= 0 m/s", airspeed)
     v_air = max(v_air, _MIN_AIRSPEED)
-    h = max(params.sigma_u * np.sqrt(2.0 * v_air / params.L_u), params.sigma_v * np.sqrt(2.0 * v_air / params.L_v))
-    return float(h), float(params.sigma_w * np.sqrt(2.0 * v_air / params.L_w))
+    u = params.sigma_u * np.sqrt(2.0 * v_air / params.L_u)
+    v = params.sigma_v * np.sqrt(3.0 * v_air / params.L_v)
+    return float(max(u, v)), float(params.sigma_w * np.sqrt(3.0 * v_air / params.L_w))
 
 
 # --------------------------------------------------------------------------- discrete gust
