@@ -101,7 +101,7 @@ def _estimator(c: Case) -> Any:
     case's Dryden turbulence (:func:`random_walk_density`), never below
     :data:`MIN_WIND_NOISE`; outside baselines with their library defaults."""
     est: Any = make_estimator(c.filter)
-    if c.filter in PHYSICAL and hasattr(est, "params"):
+    if c.filter.split(":")[0] in PHYSICAL and hasattr(est, "params"):  # overrides kept by matched_to's base
         from windahrs.filters.params import matched_to
         from windahrs.sim.scenario import default_sensors
         from windahrs.sim.wind import low_altitude_params, random_walk_density
