@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.flight import FlightError
-from windahrs.store import StoreError, atomic_h5, open_h5, read_record, write_record
+from windahrs.store import atomic_h5, open_h5, read_errors, read_record, write_record
 
 __all__ = ["ESTIMATE_FORMAT", "Estimate", "Innovations", "load_estimate", "save_estimate"]
 
@@ -138,27 +138,19 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
 
 def load_estimate(path: str | os.PathLike[str]) -> Estimate:
     """Read an Estimate written by :func:`save_estimate` (StoreError on a bad file)."""
-    try:
-        with open_h5(path, ESTIMATE_FORMAT, (ESTIMATE_VERSION,)) as f:
-            labels = str(f.attrs["state_labels"])
-            arrays = {k: f[k][()] for k in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov") if k in f}
-            inns = {
-                k: read_record(g, Innovations, f"{path}:/innovations/{k}")
-                for k, g in f["innovations"].items()
-            }
-            return Estimate(
-                filter=str(f.attrs["filter"]),
-                params=str(f.attrs["params"]),
-                state_labels=tuple(labels.split(",")) if labels else (),
-                innovations=inns,
-                skipped={k: int(v) for k, v in f["skipped"].attrs.items()},
-                meta=dict(f["meta"].attrs.items()),
-                **arrays,
-            )
-    except (StoreError, MemoryError):
-        raise
-    except FlightError as exc:
-        raise FlightError(f"{path}:{exc.field}", exc.expected, exc.found) from None
-    except Exception as exc:
-        # as load_flight: h5py meets a damaged file with whatever it hits first
-        raise StoreError(f"{path}: unreadable estimate ({type(exc).__name__}: {exc})") from None
+    with read_errors(path, "unreadable estimate"), open_h5(path, ESTIMATE_FORMAT, (ESTIMATE_VERSION,)) as f:
+        labels = str(f.attrs["state_labels"])
+        arrays = {k: f[k][()] for k in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov") if k in f}
+        inns = {
+            k: read_record(g, Innovations, f"{path}:/innovations/{k}")
+            for k, g in f["innovations"].items()
+        }
+        return Estimate(
+            filter=str(f.attrs["filter"]),
+            params=str(f.attrs["params"]),
+            state_labels=tuple(labels.split(",")) if labels else (),
+            innovations=inns,
+            skipped={k: int(v) for k, v in f["skipped"].attrs.items()},
+            meta=dict(f["meta"].attrs.items()),
+            **arrays,
+        )

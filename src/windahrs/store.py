@@ -39,6 +39,7 @@ __all__ = [
     "atomic_h5",
     "atomic_path",
     "load_flight",
+    "read_errors",
     "read_record",
     "save_flight",
     "write_record",
@@ -184,25 +185,33 @@ def load_flight(path: str | os.PathLike[str]) -> Flight:
     Raises StoreError for a missing, truncated, corrupt or foreign file, and FlightError
     (naming the field) when the contents fail validation.
     """
+    with read_errors(path, "unreadable contents"), open_h5(path, FLIGHT_FORMAT, (FLIGHT_VERSION,)) as f:
+        if "imu" not in f:
+            raise StoreError(f"{path}: no 'imu' group: a Flight needs an IMU stream")
+        parts = {}
+        for name, cls in _FLIGHT_PARTS.items():
+            if name not in f:
+                continue
+            group = f[name]
+            if not isinstance(group, h5py.Group):
+                raise StoreError(f"{path}:/{name}: expected a group, found {type(group).__name__}")
+            parts[name] = read_record(group, cls, f"{path}:/{name}")
+        meta = {k: _plain(v) for k, v in f["meta"].attrs.items()} if "meta" in f else {}
+        return Flight(**parts, meta=meta)
+
+
+@contextlib.contextmanager
+def read_errors(path: str | os.PathLike[str], what: str) -> Iterator[None]:
+    """Errors while reading a windahrs file, made the documented ones: StoreError and
+    MemoryError pass, FlightError gets the file's name before its field, and anything
+    else becomes ``StoreError("{path}: {what} (...)")``. h5py meets a damaged file with
+    whatever it hits first (KeyError, OSError, RuntimeError, ValueError,
+    UnicodeDecodeError, ...): one error naming the file."""
     try:
-        with open_h5(path, FLIGHT_FORMAT, (FLIGHT_VERSION,)) as f:
-            if "imu" not in f:
-                raise StoreError(f"{path}: no 'imu' group: a Flight needs an IMU stream")
-            parts = {}
-            for name, cls in _FLIGHT_PARTS.items():
-                if name not in f:
-                    continue
-                group = f[name]
-                if not isinstance(group, h5py.Group):
-                    raise StoreError(f"{path}:/{name}: expected a group, found {type(group).__name__}")
-                parts[name] = read_record(group, cls, f"{path}:/{name}")
-            meta = {k: _plain(v) for k, v in f["meta"].attrs.items()} if "meta" in f else {}
-            return Flight(**parts, meta=meta)
+        yield
     except (StoreError, MemoryError):
         raise
     except FlightError as exc:
         raise FlightError(f"{path}:{exc.field}", exc.expected, exc.found) from None
     except Exception as exc:
-        # h5py meets a damaged file with whatever it hits first (KeyError, OSError,
-        # RuntimeError, ValueError, UnicodeDecodeError, ...): one error naming the file.
-        raise StoreError(f"{path}: unreadable contents ({type(exc).__name__}: {exc})") from None
+        raise StoreError(f"{path}: {what} ({type(exc).__name__}: {exc})") from None
