@@ -10,7 +10,7 @@ seeds: its remaining errors come from slowly observable constants (gyro bias, ac
 bias, magnetometer hard iron), so each run's NEES is nearly constant over the flight and a
 block of 50 runs is in or out of the band as a whole. This benchmark runs ``--runs`` flights
 per wind speed with the reproduction's own code (:func:`run_reproduction`, the same
-scenario, seeds ``10000 int(w) + r``, parameters and NEES), then reports
+scenario, seeds (:func:`flight_seed`), parameters and NEES), then reports
 
 * over all runs: the time-averaged second-half NEES and the fraction of steps in the band
   of that many runs (a consistent filter: about 6 and 95 %);
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    from windahrs.experiments.reproduce import PHYSICAL, Case, case_key, run_reproduction
+    from windahrs.experiments.reproduce import PHYSICAL, Case, case_key, flight_seed, run_reproduction
     from windahrs.metrics import chi2_band
 
     bound = PHYSICAL.get(args.filter.split(":")[0])
@@ -81,8 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         for b in range(args.runs // BLOCK):
             a = nees[b * BLOCK:(b + 1) * BLOCK].mean(axis=0)[steady]
             frac = float(np.mean((a >= lo50) & (a <= hi50)))
-            seed0 = 10_000 * int(w)  # as run_reproduction seeds its flights
-            seeds = f"{seed0 + b * BLOCK}..{seed0 + (b + 1) * BLOCK - 1}"
+            seeds = f"{flight_seed(w, b * BLOCK)}..{flight_seed(w, (b + 1) * BLOCK - 1)}"
             row["blocks"].append({"seeds": seeds, "nees_mean": round(float(a.mean()), 3), "in_band": round(frac, 3)})
             tag = "  (the reproduction's runs)" if b == 0 else ""
             print(f"  block {b} seeds {seeds}: NEES {a.mean():.2f}, {100 * frac:3.0f} % of steps in the 50-run band "

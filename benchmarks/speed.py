@@ -100,14 +100,13 @@ def vqf_core_factor(flight: Any, repeat: int, results: list[dict[str, Any]]) -> 
         return None
     import numpy as np
 
-    imu, mag = flight.imu, flight.mag
+    from windahrs.baselines._common import held_mag
+
+    imu = flight.imu
     gyr = np.ascontiguousarray(imu.w_b, dtype=np.float64)
     acc = np.ascontiguousarray(imu.f_b, dtype=np.float64)
-    if mag is not None:
-        j = np.clip(np.searchsorted(mag.t, imu.t, side="right") - 1, 0, len(mag.t) - 1)
-        m = np.ascontiguousarray(mag.mag_b[j] * 1e6, dtype=np.float64)
-    else:
-        m = None
+    # the magnetometer held on the IMU grid, in microtesla, as the vqf adapter feeds it
+    m = np.ascontiguousarray(held_mag(flight, imu.t)[0]) if flight.mag is not None else None
     dt = float(np.median(np.diff(imu.t)))
 
     def run() -> None:

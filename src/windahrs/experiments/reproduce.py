@@ -25,7 +25,7 @@ from windahrs.rotation import quat_conj, quat_log, quat_mul
 from windahrs.sim.paper import PaperScenario
 from windahrs.sim.scenario import simulate
 
-__all__ = ["CLAIMS", "Case", "ReproductionResult", "default_cases", "run_reproduction"]
+__all__ = ["CLAIMS", "Case", "ReproductionResult", "default_cases", "flight_seed", "run_reproduction"]
 
 F64 = NDArray[np.float64]
 
@@ -121,6 +121,11 @@ def _estimator(c: Case) -> Any:
     return est
 
 
+def flight_seed(wind: float, run: int) -> int:
+    """Seed of run ``run`` (0-based) of the flights at ``wind`` m/s."""
+    return 10_000 * int(wind) + run
+
+
 def case_key(c: Case) -> str:
     return f"{c.wind:g} m/s | {c.filter}"
 
@@ -154,7 +159,7 @@ def run_reproduction(
     t_start = time.perf_counter()
     for w in sorted({c.wind for c in cases}):
         flights = [
-            simulate(PaperScenario(duration=duration, wind_speed=w), np.random.default_rng(10_000 * int(w) + r))
+            simulate(PaperScenario(duration=duration, wind_speed=w), np.random.default_rng(flight_seed(w, r)))
             for r in range(runs)
         ]
         n = len(flights[0].imu.t)
