@@ -30,6 +30,32 @@ class UsageError(Exception):
     """Bad command-line input; printed as ``windahrs: error: ...`` with exit status 2."""
 
 
+#: Seconds between progress lines when stderr is not a terminal (CI logs, nohup, a pipe).
+LOG_PROGRESS_S = 30.0
+
+
+class _LineWriter:
+    """tqdm's refreshes as lines of their own on stderr: off a terminal, tqdm's "\\r"
+    redraws would pile up on one line of a log file."""
+
+    def write(self, text: str) -> None:
+        text = text.strip("\r\n")
+        if text.strip():
+            sys.stderr.write(text.rstrip() + "\n")
+
+    def flush(self) -> None:
+        sys.stderr.flush()
+
+
+def _runs_bar(total: int, desc: str) -> tqdm:
+    """Progress of a long multi-run command on stderr: redrawn in place on a terminal; off a
+    terminal, one line every :data:`LOG_PROGRESS_S` seconds and one at the end."""
+    if sys.stderr.isatty():
+        return tqdm(total=total, desc=desc, unit="run", file=sys.stderr)
+    return tqdm(total=total, desc=desc, unit="run", file=_LineWriter(), mininterval=LOG_PROGRESS_S,
+                maxinterval=LOG_PROGRESS_S, ascii=True)
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from windahrs.sim.scenario import make_scenario, simulate
     from windahrs.store import save_flight
@@ -50,6 +76,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The reproduction's NEES check runs on this many blocks of --runs flights by default.
+NEES_CHECK_BLOCKS = 8
+
 DEFAULT_EXPERIMENT_FILTERS = (
     "ins-wind,mekf-air,mekf,mekf:accel_compensation=airspeed,ekf7,ekf10,usque,"
     "paper,paper:wind=mean,paper-nowind,ekf,ukf"
@@ -64,7 +93,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     specs = [s.strip() for s in args.filters.split(",") if s.strip()]
     if args.runs < 1:
         raise UsageError(f"--runs: expected an integer >= 1, found {args.runs}")
-    with tqdm(total=args.runs * len(specs), desc="experiment", unit="run", disable=None, file=sys.stderr) as bar:
+    with _runs_bar(args.runs * len(specs), "experiment") as bar:
 
         def step(done: int, total: int) -> None:
             bar.update(done - bar.n)
@@ -103,17 +132,30 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         raise UsageError(f"--runs: expected an integer >= 1, found {runs}")
     if args.duration <= 0:
         raise UsageError(f"--duration: expected > 0 s, found {args.duration}")
+    if args.nees_runs is None:
+        nees_runs = runs if args.quick else NEES_CHECK_BLOCKS * runs
+    elif args.nees_runs < runs:
+        raise UsageError(f"--nees-runs: expected an integer >= --runs ({runs}), found {args.nees_runs}")
+    else:
+        nees_runs = args.nees_runs
     cases = default_cases(names())
+    checked = sum(c.bound is not None for c in cases)
     t0 = time.perf_counter()
-    with tqdm(total=len(cases) * runs, desc="reproduce", unit="run", disable=None, file=sys.stderr) as bar:
+    total = len(cases) * runs + checked * (nees_runs - runs)
+    with _runs_bar(total, "reproduce") as bar:
+        seen: set[str] = set()
 
-        def step(label: str, run: int) -> None:
-            bar.set_postfix_str(f"case {bar.n // runs + 1}/{len(cases)} {label}, run {run}/{runs}")
+        def step(label: str, run: int, of: int) -> None:
+            seen.add(label.removesuffix(" (NEES check)"))
+            bar.set_postfix_str(f"case {len(seen)}/{len(cases)} {label}, run {run}/{of}", refresh=False)
             bar.update(1)
 
-        res = run_reproduction(runs, duration=args.duration, cases=cases, progress=step, bound_fn=_bound_fn())
+        res = run_reproduction(
+            runs, duration=args.duration, cases=cases, progress=step, bound_fn=_bound_fn(), nees_runs=nees_runs
+        )
     files = write_reproduction(res, args.out)
-    print(f"{len(cases)} cases x {runs} runs in {time.perf_counter() - t0:.0f} s")
+    extra = f", NEES check of {checked} cases on {nees_runs} runs" if nees_runs > runs else ""
+    print(f"{len(cases)} cases x {runs} runs{extra} in {time.perf_counter() - t0:.0f} s")
     for f in files:
         print(f"wrote {f}")
     from windahrs.experiments.reproduce import claims
@@ -137,7 +179,7 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
 
     specs = [s.strip() for s in args.filters.split(",") if s.strip()]
     paths = discover_trials(args.dir) if args.dir.is_dir() else [args.dir]
-    with tqdm(total=len(paths) * len(specs), desc="bench-data", unit="run", disable=None, file=sys.stderr) as bar:
+    with _runs_bar(len(paths) * len(specs), "bench-data") as bar:
 
         def step(done: int, total: int) -> None:
             bar.update(done - bar.n)
@@ -515,6 +557,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--runs", type=int, default=None, metavar="N", help="Monte Carlo runs per case (default 50)")
     r.add_argument("--quick", action="store_true", help="5 runs per case (unless --runs is given)")
+    r.add_argument("--nees-runs", type=int, default=None, metavar="M",
+                   help=f"runs of the physically tuned filters' NEES check (default {NEES_CHECK_BLOCKS} x --runs, "
+                   "400 at the default; with --quick, --runs: no extra flights); the check is also reported per "
+                   "block of --runs runs")
     r.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds per run (default 20)")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     r.set_defaults(func=_cmd_reproduce)

@@ -25,7 +25,10 @@ from windahrs.rotation import quat_conj, quat_log, quat_mul
 from windahrs.sim.paper import PaperScenario
 from windahrs.sim.scenario import simulate
 
-__all__ = ["CLAIMS", "Case", "ReproductionResult", "default_cases", "flight_seed", "run_reproduction"]
+__all__ = [
+    "CLAIMS", "Case", "ReproductionResult", "default_cases", "flight_seed", "nees_check", "nees_summary",
+    "run_reproduction",
+]
 
 F64 = NDArray[np.float64]
 
@@ -38,6 +41,8 @@ CLAIMS = {5.0: (1.3, 1.2, 1.0), 8.0: (1.9, 2.2, 2.1)}
 MIN_WIND_NOISE = 0.05
 #: Error threshold of the convergence time, deg (total rotation error).
 CONVERGENCE_DEG = 5.0
+#: Degrees of freedom of the NEES: attitude and gyro bias (SPEC 6.3).
+NEES_DIM = 6
 
 
 @dataclass(frozen=True)
@@ -84,8 +89,9 @@ def default_cases(available: Sequence[str]) -> list[Case]:
 class ReproductionResult:
     """``cases``: JSON-ready rows (the results.json schema); ``errors``: per case label,
     Euler errors (runs, N, 3) in deg; ``nees``: per case label of a physically tuned
-    filter, the attitude and gyro-bias NEES (runs, N) of each run; ``bounds``: per (wind,
-    model) the PCRB std (N, 3) in deg; ``meta``: runs, duration, timings."""
+    filter, the attitude and gyro-bias NEES (nees_runs, N) of each run, the reproduction's
+    runs first; ``bounds``: per (wind, model) the PCRB std (N, 3) in deg; ``meta``: runs,
+    nees_runs, duration, timings."""
 
     cases: list[dict[str, Any]] = field(default_factory=list)
     errors: dict[str, F64] = field(default_factory=dict)
@@ -140,22 +146,32 @@ def run_reproduction(
     *,
     duration: float = 20.0,
     cases: Sequence[Case] | None = None,
-    progress: Callable[[str, int], None] | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
     bound_fn: Callable[[Sequence[Flight], str], F64 | None] | None = None,
+    nees_runs: int | None = None,
 ) -> ReproductionResult:
     """Run every case on ``runs`` flights per wind speed.
 
     ``bound_fn(flights, model)`` returns the PCRB attitude std (N, 3) in deg (body axes)
     averaged over the flights, for ``model`` "gravity" or "ins"; None skips the ratios.
-    ``progress(case_label, run)`` is called after each estimator run (run 1..runs).
+    ``nees_runs`` (default ``runs``): when larger, the physically tuned filters also run on
+    flights ``runs..nees_runs-1`` of the same seed sequence, simulated one at a time, and
+    their rows get a ``nees_check`` (:func:`nees_check` over all ``nees_runs``, in blocks of
+    ``runs``); every other number comes from the first ``runs`` flights.
+    ``progress(label, run, of)`` is called after each estimator run (run 1..of).
     """
     if runs < 1:
         raise ValueError(f"runs: expected >= 1, found {runs}")
+    nees_runs = runs if nees_runs is None else nees_runs
+    if nees_runs < runs:
+        raise ValueError(f"nees_runs: expected >= runs ({runs}), found {nees_runs}")
     from windahrs.filters.registry import names
 
     cases = list(cases) if cases is not None else default_cases(names())
     estimators = {(c.wind, c.filter): _estimator(c) for c in cases}
-    res = ReproductionResult(meta={"runs": runs, "duration_s": duration, "convergence_deg": CONVERGENCE_DEG})
+    res = ReproductionResult(
+        meta={"runs": runs, "nees_runs": nees_runs, "duration_s": duration, "convergence_deg": CONVERGENCE_DEG}
+    )
     t_start = time.perf_counter()
     for w in sorted({c.wind for c in cases}):
         flights = [
@@ -179,7 +195,7 @@ def run_reproduction(
                 if c.bound is not None and est.cov is not None:
                     nees.append(nees_attitude(est, fl))
                 if progress:
-                    progress(key, r + 1)
+                    progress(key, r + 1, runs)
             res.errors[key] = euler
             steady = slice(n // 2, None)
             row: dict[str, Any] = {
@@ -192,6 +208,8 @@ def run_reproduction(
                 "convergence_samples": convergence_index(np.median(total, axis=0), CONVERGENCE_DEG),
                 "pcrb_ratio": None,
                 "nees_in_band": None,
+                "nees_mean": None,
+                "nees_check": None,
                 "bound": c.bound,
             }
             if c.bound is not None and bound_fn is not None:
@@ -205,17 +223,75 @@ def run_reproduction(
                     row["pcrb_ratio"] = [float(v) for v in rmse_body / np.sqrt(np.mean(b[steady] ** 2, axis=0))]
             if nees:
                 res.nees[key] = np.array(nees)
-                avg = np.mean(nees, axis=0)
-                lo, hi = chi2_band(6, len(nees))
-                row["nees_in_band"] = float(np.mean((avg[steady] >= lo) & (avg[steady] <= hi)))
+                summary = nees_summary(res.nees[key])
+                row["nees_in_band"], row["nees_mean"] = summary["in_band"], summary["nees_mean"]
             res.cases.append(row)
+        if nees_runs > runs:
+            _extend_nees(res, [c for c in cases if c.wind == w and case_key(c) in res.nees],
+                         estimators, runs, nees_runs, duration, progress)
     res.meta["seconds"] = time.perf_counter() - t_start
     return res
+
+
+def _extend_nees(
+    res: ReproductionResult,
+    cases: Sequence[Case],
+    estimators: dict[tuple[float, str], Any],
+    runs: int,
+    nees_runs: int,
+    duration: float,
+    progress: Callable[[str, int, int], None] | None,
+) -> None:
+    """The consistency check on more flights: run ``cases`` (one wind speed) on flights
+    ``runs..nees_runs-1``, one flight in memory at a time, and add ``nees_check`` to their rows."""
+    if not cases:
+        return
+    w = cases[0].wind
+    more: dict[str, list[F64]] = {case_key(c): [] for c in cases}
+    for r in range(runs, nees_runs):
+        fl = simulate(PaperScenario(duration=duration, wind_speed=w), np.random.default_rng(flight_seed(w, r)))
+        for c in cases:
+            key = case_key(c)
+            more[key].append(nees_attitude(estimators[c.wind, c.filter].run(fl), fl))
+            if progress:
+                progress(f"{key} (NEES check)", r + 1, nees_runs)
+    for c in cases:
+        key = case_key(c)
+        res.nees[key] = np.vstack([res.nees[key], np.array(more[key])])
+        row = next(x for x in res.cases if x["wind"] == w and x["filter"] == c.filter)
+        row["nees_check"] = nees_check(res.nees[key], runs)
 
 
 def _lt(a: float, b: float) -> str:
     """The relation of a to b as printed in a claim's numbers."""
     return "<" if a < b else ">="
+
+
+def nees_summary(nees: F64) -> dict[str, Any]:
+    """The consistency check of SPEC 6.3 on NEES series (runs, N): the run-average NEES
+    over the second half (time-averaged), the two-sided 95 % chi-square band of that many
+    runs, and the fraction of second-half steps whose run-average lies inside it."""
+    runs, n = nees.shape
+    avg = nees.mean(axis=0)[n // 2:]
+    lo, hi = chi2_band(NEES_DIM, runs)
+    return {
+        "runs": int(runs),
+        "nees_mean": float(avg.mean()),
+        "band": [lo, hi],
+        "in_band": float(np.mean((avg >= lo) & (avg <= hi))),
+    }
+
+
+def nees_check(nees: F64, block: int) -> dict[str, Any]:
+    """:func:`nees_summary` over all runs, and the in-band fraction of each complete block of
+    ``block`` consecutive runs (block 0: the reproduction's runs) in the band of ``block``
+    runs: how much a check on one block of that size can say."""
+    out = nees_summary(nees)
+    out["block_runs"] = int(block)
+    out["blocks_in_band"] = [
+        nees_summary(nees[b * block:(b + 1) * block])["in_band"] for b in range(len(nees) // block)
+    ]
+    return out
 
 
 def _rms_axes(x: F64) -> list[float]:
