@@ -48,9 +48,13 @@ def test_json_markdown_and_html_agree(out_dir: Path) -> None:
     for claim in data["claims"]:
         assert claim["numbers"] in md
     for c in data["cases"]:
-        if c["nees_check"] is not None:
-            cell = format_cell(c["nees_check"]["nees_mean"])
-            assert cell in md and cell in html, (c["filter"], cell)
+        chk = c["nees_check"]
+        if chk is not None:
+            passing = sum(f >= 0.9 for f in chk["blocks_in_band"])
+            cells = (format_cell(chk["nees_mean"]), f"{100 * chk['in_band']:.1f} % in [{chk['band'][0]:.2f}, ",
+                     f"{passing} of {len(chk['blocks_in_band'])}")
+            for cell in cells:
+                assert cell in md and cell in html, (c["filter"], cell)
     assert np.isfinite([v for c in data["cases"] for v in c["rmse_steady_deg"]]).all()
 
 
@@ -67,29 +71,50 @@ def test_report_renders_in_headless_chromium(out_dir: Path) -> None:
 
 
 def test_nees_check_extends_the_reproduction_runs_with_the_same_seed_sequence() -> None:
-    """The NEES check on more flights keeps the reproduction's runs as its first block and
-    adds the next seeds: its block 0 is the reproduction's own figure, and the runs beyond
-    it are exactly what a longer reproduction would have run."""
-    from windahrs.experiments.reproduce import Case, case_key, nees_summary, run_reproduction
+    """The NEES check on more flights keeps the reproduction's runs first and adds the next
+    seeds: its runs are exactly what a longer reproduction would have run."""
+    from windahrs.experiments.reproduce import Case, case_key, run_reproduction
 
     case = Case(5.0, "ins-wind", "estimated", "", "ins")
     short = run_reproduction(2, duration=1.0, cases=[case], nees_runs=4)
     longer = run_reproduction(4, duration=1.0, cases=[case])
-    row = short.cases[0]
-    chk = row["nees_check"]
-    assert chk["runs"] == 4 and chk["block_runs"] == 2 and len(chk["blocks_in_band"]) == 2
-    assert chk["blocks_in_band"][0] == row["nees_in_band"]
     key = case_key(case)
     np.testing.assert_array_equal(short.nees[key], longer.nees[key])
-    assert chk["nees_mean"] == pytest.approx(longer.cases[0]["nees_mean"])
-    assert chk["band"] == pytest.approx(nees_summary(longer.nees[key])["band"])
+    row = short.cases[0]
+    assert row["nees_check"]["runs"] == 4 and row["nees_check"]["block_runs"] == 2
+    assert row["nees_check"]["blocks_in_band"][0] == row["nees_in_band"]
     assert longer.cases[0]["nees_check"] is None
-    # Everything but the NEES comes from the reproduction's runs alone.
-    assert row["rmse_steady_deg"] == run_reproduction(2, duration=1.0, cases=[case]).cases[0]["rmse_steady_deg"]
     with pytest.raises(ValueError, match="nees_runs"):
         run_reproduction(2, duration=1.0, cases=[case], nees_runs=1)
 
 
+def test_nees_summary_and_check_on_known_series() -> None:
+    """The band of SPEC 6.3 (n = 6, N = 50: [5.08, 7.00]), only second-half steps counted,
+    and blocks cut by runs: on series built to land in or out of the band."""
+    from windahrs.experiments.reproduce import nees_check, nees_summary
+
+    nees = np.full((100, 10), 6.0)
+    nees[:, :5] = 100.0  # first half: out of any band, must not count
+    nees[:50, 8:] = 7.2  # block 0: above its band at the last 2 of 5 second-half steps
+    s = nees_summary(nees[:50])
+    assert s["band"] == pytest.approx([5.08, 7.00], abs=0.005)
+    assert s["in_band"] == pytest.approx(0.6) and s["nees_mean"] == pytest.approx((3 * 6 + 2 * 7.2) / 5)
+    c = nees_check(nees, 50)
+    assert c["blocks_in_band"] == [pytest.approx(0.6), 1.0]
+    # over 100 runs the run-average is 6.6 at those steps, inside [5.34, 6.70]
+    assert c["band"] == pytest.approx([5.34, 6.70], abs=0.005) and c["in_band"] == 1.0
+
+
 def test_reproduce_refuses_fewer_nees_runs_than_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["reproduce", "--runs", "3", "--nees-runs", "2", "--out", str(tmp_path)]) == 2
-    assert "--nees-runs: expected an integer >= --runs (3), found 2" in capsys.readouterr().err
+    assert "--nees-runs: expected an integer >= the runs per case (3), found 2" in capsys.readouterr().err
+
+
+def test_nees_runs_default_is_eight_blocks_and_none_extra_with_quick() -> None:
+    from windahrs.cli import UsageError, reproduce_nees_runs
+
+    assert reproduce_nees_runs(50, False, None) == 400
+    assert reproduce_nees_runs(5, True, None) == 5
+    assert reproduce_nees_runs(5, True, 40) == 40
+    with pytest.raises(UsageError, match=r"runs per case \(5\), found 3"):
+        reproduce_nees_runs(5, True, 3)

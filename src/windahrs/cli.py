@@ -120,6 +120,16 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
+def reproduce_nees_runs(runs: int, quick: bool, nees_runs: int | None) -> int:
+    """Runs of ``reproduce``'s NEES check: ``--nees-runs`` if given (at least the runs per
+    case), else :data:`NEES_CHECK_BLOCKS` x the runs per case, or no extra runs with --quick."""
+    if nees_runs is None:
+        return runs if quick else NEES_CHECK_BLOCKS * runs
+    if nees_runs < runs:
+        raise UsageError(f"--nees-runs: expected an integer >= the runs per case ({runs}), found {nees_runs}")
+    return nees_runs
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     import time
 
@@ -132,12 +142,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         raise UsageError(f"--runs: expected an integer >= 1, found {runs}")
     if args.duration <= 0:
         raise UsageError(f"--duration: expected > 0 s, found {args.duration}")
-    if args.nees_runs is None:
-        nees_runs = runs if args.quick else NEES_CHECK_BLOCKS * runs
-    elif args.nees_runs < runs:
-        raise UsageError(f"--nees-runs: expected an integer >= --runs ({runs}), found {args.nees_runs}")
-    else:
-        nees_runs = args.nees_runs
+    nees_runs = reproduce_nees_runs(runs, args.quick, args.nees_runs)
     cases = default_cases(names())
     checked = sum(c.bound is not None for c in cases)
     t0 = time.perf_counter()
@@ -558,9 +563,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--runs", type=int, default=None, metavar="N", help="Monte Carlo runs per case (default 50)")
     r.add_argument("--quick", action="store_true", help="5 runs per case (unless --runs is given)")
     r.add_argument("--nees-runs", type=int, default=None, metavar="M",
-                   help=f"runs of the physically tuned filters' NEES check (default {NEES_CHECK_BLOCKS} x --runs, "
-                   "400 at the default; with --quick, --runs: no extra flights); the check is also reported per "
-                   "block of --runs runs")
+                   help=f"runs of the physically tuned filters' NEES check, at least the runs per case (default "
+                   f"{NEES_CHECK_BLOCKS} x the runs per case, 400 without --runs; with --quick, the runs per case: "
+                   "no extra flights); the check is also reported per block of the runs per case")
     r.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds per run (default 20)")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     r.set_defaults(func=_cmd_reproduce)
