@@ -43,6 +43,8 @@ MIN_WIND_NOISE = 0.05
 CONVERGENCE_DEG = 5.0
 #: Degrees of freedom of the NEES: attitude and gyro bias (SPEC 6.3).
 NEES_DIM = 6
+#: Fraction of steps in the band that a consistency check must reach to pass.
+NEES_PASS = 0.9
 
 
 @dataclass(frozen=True)
@@ -283,14 +285,16 @@ def nees_summary(nees: F64) -> dict[str, Any]:
 
 
 def nees_check(nees: F64, block: int) -> dict[str, Any]:
-    """:func:`nees_summary` over all runs, and the in-band fraction of each complete block of
+    """:func:`nees_summary` over all runs, the in-band fraction of each complete block of
     ``block`` consecutive runs (block 0: the reproduction's runs) in the band of ``block``
-    runs: how much a check on one block of that size can say."""
+    runs, and how many blocks reach :data:`NEES_PASS`: how much a check on one block of that
+    size can say."""
     out = nees_summary(nees)
     out["block_runs"] = int(block)
     out["blocks_in_band"] = [
         nees_summary(nees[b * block:(b + 1) * block])["in_band"] for b in range(len(nees) // block)
     ]
+    out["blocks_passing"] = sum(f >= NEES_PASS for f in out["blocks_in_band"])
     return out
 
 
