@@ -118,3 +118,13 @@ def test_nees_runs_default_is_eight_blocks_and_none_extra_with_quick() -> None:
     assert reproduce_nees_runs(5, True, 40) == 40
     with pytest.raises(UsageError, match=r"runs per case \(5\), found 3"):
         reproduce_nees_runs(5, True, 3)
+
+
+def test_progress_total_counts_every_progress_call() -> None:
+    from windahrs.experiments.reproduce import Case, progress_total, run_reproduction
+
+    cases = [Case(5.0, "ins-wind", "estimated", "", "ins"), Case(5.0, "madgwick", "none")]
+    calls: list[tuple[str, int, int]] = []
+    run_reproduction(1, duration=1.0, cases=cases, nees_runs=3, progress=lambda *a: calls.append(a))
+    assert len(calls) == progress_total(cases, 1, 3) == 4
+    assert [c[0] for c in calls[-2:]] == ["5 m/s | ins-wind (NEES check)"] * 2 and calls[-1][1:] == (3, 3)

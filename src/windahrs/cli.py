@@ -133,7 +133,7 @@ def reproduce_nees_runs(runs: int, quick: bool, nees_runs: int | None) -> int:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     import time
 
-    from windahrs.experiments.reproduce import default_cases, run_reproduction
+    from windahrs.experiments.reproduce import NEES_CHECK_LABEL, default_cases, progress_total, run_reproduction
     from windahrs.filters.registry import names
     from windahrs.report.reproduction import write_reproduction
 
@@ -146,12 +146,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     cases = default_cases(names())
     checked = sum(c.bound is not None for c in cases)
     t0 = time.perf_counter()
-    total = len(cases) * runs + checked * (nees_runs - runs)
-    with _runs_bar(total, "reproduce") as bar:
+    with _runs_bar(progress_total(cases, runs, nees_runs), "reproduce") as bar:
         seen: set[str] = set()
 
         def step(label: str, run: int, of: int) -> None:
-            seen.add(label.removesuffix(" (NEES check)"))
+            seen.add(label.removesuffix(NEES_CHECK_LABEL))
             bar.set_postfix_str(f"case {len(seen)}/{len(cases)} {label}, run {run}/{of}", refresh=False)
             bar.update(1)
 

@@ -27,7 +27,7 @@ from windahrs.sim.scenario import simulate
 
 __all__ = [
     "CLAIMS", "Case", "ReproductionResult", "default_cases", "flight_seed", "nees_check", "nees_summary",
-    "run_reproduction",
+    "progress_total", "run_reproduction",
 ]
 
 F64 = NDArray[np.float64]
@@ -235,6 +235,16 @@ def run_reproduction(
     return res
 
 
+#: Suffix of the progress label of a run that only feeds the NEES check.
+NEES_CHECK_LABEL = " (NEES check)"
+
+
+def progress_total(cases: Sequence[Case], runs: int, nees_runs: int) -> int:
+    """How many times :func:`run_reproduction` calls ``progress``: every case on ``runs``
+    flights, and the physically tuned ones on ``nees_runs - runs`` more."""
+    return len(cases) * runs + sum(c.bound is not None for c in cases) * max(nees_runs - runs, 0)
+
+
 def _extend_nees(
     res: ReproductionResult,
     cases: Sequence[Case],
@@ -256,7 +266,7 @@ def _extend_nees(
             key = case_key(c)
             more[key].append(nees_attitude(estimators[c.wind, c.filter].run(fl), fl))
             if progress:
-                progress(f"{key} (NEES check)", r + 1, nees_runs)
+                progress(key + NEES_CHECK_LABEL, r + 1, nees_runs)
     for c in cases:
         key = case_key(c)
         res.nees[key] = np.vstack([res.nees[key], np.array(more[key])])
