@@ -2,12 +2,12 @@
 propagation and updates in numba nopython kernels, with no Python per sample. Tested equal
 to the reference sample by sample (tests/test_compiled_usque.py).
 
-Everything that [usque] shares with [mekf] is taken from :mod:`windahrs.filters.compiled`
-rather than written again: the :class:`~windahrs.filters.compiled.KernelState` (encoded by
+Everything that [usque] shares with [mekf] is taken from :mod:`windahrs.core`
+rather than written again: the :class:`~windahrs.core.layout.KernelState` (encoded by
 ``make_state`` for an [att, bg] layout), initialisation (``_try_init``: InitialState or
 TRIAD, waiting for a magnetometer sample), the magnetometer reference, the scalar
 quaternion helpers, the 3x3 inverse, the innovation logs, the recording of states and
-covariance, and the streamer (:class:`~windahrs.filters.compiled.CompiledStreamer` with the
+covariance, and the streamer (:class:`~windahrs.core.kernel.CompiledStreamer` with the
 step loop swapped). Only the unscented transforms are new here, and they follow the
 reference's order of operations; the results differ from it by rounding only (a scalar
 Cholesky and a cofactor inverse instead of LAPACK): about 1e-14 relative after a flight.
@@ -28,9 +28,8 @@ from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
 from windahrs.filters.base import EVENT_IMU, EVENT_MAG, InitialState, merge_events
-from windahrs.filters.compiled import (
+from windahrs.core.layout import (
     _JIT,
-    _STREAMS,
     C_CAP,
     C_MAG,
     INN_ACCEL,
@@ -58,26 +57,35 @@ from windahrs.filters.compiled import (
     X_MAGN,
     X_Q,
     X_TIMU,
-    CompiledStreamer,
     KernelState,
+)
+from windahrs.core.quat import (
     _dcm9,
     _euler,
-    _grow,
-    _innovations,
-    _inverse_small,
-    _log,
     _qexp,
     _qmul,
     _qnormalize,
     _quat_from_euler,
-    _set_mag_reference,
-    _try_init,
     _wrap_pi,
-    layout_of,
+)
+from windahrs.core.kalman import (
+    _inverse_small,
+    _log,
+)
+from windahrs.core.kernel import (
+    _STREAMS,
+    CompiledStreamer,
+    Kind,
+    layout_for,
+    _grow,
+    _innovations,
+    _try_init,
     make_state,
     record,
 )
-from windahrs.filters.eskf import Kind
+from windahrs.aid.mag import (
+    _set_mag_reference,
+)
 from windahrs.filters.params import EskfParams
 from windahrs.filters.usque import GRP_A, GRP_F, USQUE_LAMBDA, Usque
 from windahrs.flight import Flight, Site
@@ -493,7 +501,7 @@ class UsqueFast(Usque):
         caps = np.array([counts[EVENT_IMU], counts[EVENT_MAG], 0, 0, 0, 0], dtype=np.int64)
         kp = _kernel_params(self.params)
         st: KernelState = make_state(_KERNEL_KIND, False, kp, flight.site, _kernel_initial(initial), has, caps)
-        L = layout_of(_KERNEL_KIND, kp)
+        L = layout_for(_KERNEL_KIND, kp)
         N = len(flight.imu.t)
         q, bg, cov = np.empty((N, 4)), np.empty((N, 3)), np.empty((N, _N, _N))
         run_usque(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, np.empty((0, 3)), cov, True)

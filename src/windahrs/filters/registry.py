@@ -1,8 +1,6 @@
 """The registry: every estimator by name, for the CLI, benchmarks and experiments.
 
-The error-state filters, the additive EKFs and USQUE resolve to their compiled (numba)
-twins, which are tested equal to the readable references in ``eskf.py``, ``ekf7.py`` and
-``usque.py``.
+Every windahrs estimator runs on the compiled core (:mod:`windahrs.core`).
 
 Entries are imported lazily so that an outside library (ahrs, vqf, imufusion) is only
 needed when its adapter is used.
@@ -24,11 +22,11 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "paper-nowind": ("windahrs.filters.paper", "PaperEKFNoWind", "the paper's EKF without the air data"),
     "ekf": ("windahrs.filters.paper", "TraditionalEKF", "traditional accelerometer+magnetometer EKF"),
     "ukf": ("windahrs.filters.paper", "AdditiveUKF", "additive-quaternion UKF"),
-    "ekf7": ("windahrs.filters.compiled", "Ekf7Fast", "additive quaternion + gyro bias EKF, Q from gyro noise"),
-    "ekf10": ("windahrs.filters.compiled", "Ekf10Fast", "ekf7 plus wind states fusing air data"),
-    "mekf": ("windahrs.filters.compiled", "MekfFast", "error-state EKF, attitude + gyro bias"),
-    "mekf-air": ("windahrs.filters.compiled", "MekfAirFast", "error-state EKF with wind states and air data"),
-    "ins-wind": ("windahrs.filters.compiled", "InsWindFast", "error-state INS with wind states (recommended)"),
+    "ekf7": ("windahrs.filters.ekf7", "Ekf7", "additive quaternion + gyro bias EKF, Q from gyro noise"),
+    "ekf10": ("windahrs.filters.ekf7", "Ekf10", "ekf7 plus wind states fusing air data"),
+    "mekf": ("windahrs.filters.eskf", "Mekf", "error-state EKF, attitude + gyro bias"),
+    "mekf-air": ("windahrs.filters.eskf", "MekfAir", "error-state EKF with wind states and air data"),
+    "ins-wind": ("windahrs.filters.eskf", "InsWind", "error-state INS with wind states (recommended)"),
     "usque": (
         "windahrs.filters.compiled_usque",
         "UsqueFast",

@@ -34,7 +34,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from windahrs.filters.base import Estimator, InitialState, StateView, Streamer, triad
-from windahrs.filters.eskf import mag_reference
 from windahrs.filters.params import EskfParams
 from windahrs.flight import Site
 from windahrs.models import observations as obs
@@ -62,6 +61,15 @@ __all__ = [
 ]
 
 F64 = NDArray[np.float64]
+
+
+def mag_reference(site: Site, q_nb: F64, mag_b: F64) -> F64:
+    """The nav-frame field: the site's, or (unknown site) the first sample's, with its
+    horizontal part taken as north."""
+    if site.mag_n is not None:
+        return site.mag_n.copy()
+    m = dcm_from_quat(q_nb) @ mag_b
+    return np.array([np.hypot(m[0], m[1]), 0.0, m[2]])
 PointModel = Callable[[F64, F64], F64]
 
 #: Generalised Rodrigues parameters: a and f = 2 (a + 1), so that dp ~ dtheta.

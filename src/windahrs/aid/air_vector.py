@@ -1,0 +1,74 @@
+"""Aid source: the paper's air-data vector ``V_T^b = C_bn (V_n - W_n)`` (SPEC 3.4), from
+pitot and both vanes: 3 rows with the Jacobian of :mod:`windahrs.aid.air_velocity`, and
+``R = J diag(tas_sigma^2, vane_sigma^2, vane_sigma^2) J^T (+ gnss_sigma^2 I when the GNSS
+velocity is an input, [mekf-air])``, J the Jacobian of V_air^b on (tas, aoa, sideslip).
+Gate: gate_air sigmas per component. Also the wind's initial value from the first air
+sample, ``W = V - C_nb V_air``. Innovation key: ``"air"`` (3 rows).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from windahrs.aid.air_velocity import (
+    _air_rows,
+)
+from windahrs.core.kalman import (
+    _fuse,
+)
+from windahrs.core.layout import (
+    _JIT,
+    INN_AIR,
+    R_GATE2_AIR,
+    R_TAS_VAR,
+    R_VANE_VAR,
+    S_WPEND,
+    W_NU,
+    W_R,
+    W_T,
+    X_Q,
+    X_V,
+    X_VAIR,
+    X_VGNSS,
+    X_W,
+)
+from windahrs.core.quat import (
+    _dcm9,
+)
+
+
+@njit(inline="always", **_JIT)
+def init_wind(x, flags, use_v, vanes):
+    """W = V - C_nb V_air from the first air sample (vertical wind 0 without vanes)."""
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    vv = X_V if use_v else X_VGNSS
+    ax, ay, az = x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2]
+    x[X_W] = x[vv] - (c[0] * ax + c[1] * ay + c[2] * az)
+    x[X_W + 1] = x[vv + 1] - (c[3] * ax + c[4] * ay + c[5] * az)
+    x[X_W + 2] = x[vv + 2] - (c[6] * ax + c[7] * ay + c[8] * az) if vanes else 0.0
+    flags[S_WPEND] = 0
+
+
+@njit(inline="always", **_JIT)
+def fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra):
+    """Fuse the air-relative velocity of the sample (X_VAIR; tas m/s, cos/sin of aoa and
+    sideslip) at t s; extra: variance added per axis (m/s)^2."""
+    nu, R = work[W_NU], work[W_R : W_R + 3]
+    ns = np.int64(0)
+    y0 = y1 = y2 = 0.0
+    for k in range(3):  # g = e_k: row k of J
+        e0, e1, e2 = 1.0 if k == 0 else 0.0, 1.0 if k == 1 else 0.0, 1.0 if k == 2 else 0.0
+        y0, y1, y2, ns = _air_rows(cfg, x, work, sup[0], use_v, e0, e1, e2, np.int64(k))
+    nu[0], nu[1], nu[2] = x[X_VAIR] - y0, x[X_VAIR + 1] - y1, x[X_VAIR + 2] - y2
+    # R = J diag(tas^2, vane^2, vane^2) J^T + extra I, J = d V_air / d(tas, aoa, beta)
+    J = work[W_T + 21 : W_T + 24, 0:3]
+    J[0, 0], J[0, 1], J[0, 2] = ca * cb, -tas * sa * cb, -tas * ca * sb
+    J[1, 0], J[1, 1], J[1, 2] = sb, 0.0, tas * cb
+    J[2, 0], J[2, 1], J[2, 2] = sa * cb, tas * ca * cb, -tas * sa * sb
+    d0, d1 = prm[R_TAS_VAR], prm[R_VANE_VAR]
+    for k in range(3):
+        for l in range(3):
+            r = J[k, 0] * d0 * J[l, 0] + J[k, 1] * d1 * J[l, 1] + J[k, 2] * d1 * J[l, 2]
+            R[k, l] = r + extra if k == l else r
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AIR), t, np.int64(3), ns, prm[R_GATE2_AIR])

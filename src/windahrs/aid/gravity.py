@@ -1,0 +1,110 @@
+"""Aid source: the accelerometer as a measurement of gravity (SPEC 3.2), for the filters
+that do not take it as an input ([mekf], [mekf-air], [ekf7], [ekf10]).
+
+Preprocessing: compensation of the vehicle's acceleration by GNSS velocity differences
+(``C_bn a_gnss``) or by ``(w - b_g) x V_air`` from pitot and vanes (SPEC 3.2.2); optionally
+a first-order low-pass of the compensated specific force in an almost inertial frame (the
+running mean is rotated into each new body frame by the gyro increment, VQF's tau_acc), the
+mean then being the measurement. Gate: ``| |f| - g | < accel_norm_gate g`` (a rejected
+sample logs NaN), then each innovation component within ``gate_accel`` sigmas.
+Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_norm_gate,
+accel_compensation, accel_lowpass, gate_accel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from windahrs.core.kalman import (
+    _fuse,
+    _log,
+    _lowpass_gain,
+    _vector_rows,
+)
+from windahrs.core.layout import (
+    _JIT,
+    C_COMP,
+    C_IBA,
+    COMP_AIRSPEED,
+    COMP_GNSS,
+    INN_ACCEL,
+    R_ACC_LP,
+    R_ACC_VAR,
+    R_GATE2_ACC,
+    R_GRAV,
+    R_NORM_GATE,
+    S_AGNSS,
+    S_FBAR,
+    S_VAIR,
+    W_H,
+    W_NU,
+    X_AGNSS,
+    X_BA,
+    X_BG,
+    X_FBAR,
+    X_Q,
+    X_VAIR,
+)
+from windahrs.core.quat import (
+    _dcm9,
+)
+
+
+@njit(inline="always", **_JIT)
+def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
+    """The accelerometer of IMU sample ``row`` = [w_b, f_b] at t s, after the prediction
+    over dt s: the specific force (compensated, optionally low-passed) as a measurement of
+    gravity, ``h = C_bn (-g_n) (+ compensation) (+ b_a)``, ``H_att = [h_g]x``, R = accel_sigma^2 I,
+    gated on ``| |f| - g | > accel_norm_gate g`` and on the innovation (gate_accel)."""
+    fx, fy, fz = row[3], row[4], row[5]
+    # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
+    nu = work[W_NU]
+    g = prm[R_GRAV]
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    k0, k1, k2 = 0.0, 0.0, 0.0  # compensation acceleration, body
+    comp = cfg[C_COMP]
+    has_k = False
+    if comp == COMP_AIRSPEED and flags[S_VAIR] == 1:  # (w - bg) x V_air
+        ux, uy, uz = row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2]
+        vx, vy, vz = x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2]
+        k0, k1, k2 = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        has_k = True
+    elif comp == COMP_GNSS and flags[S_AGNSS] == 1:  # C_bn a_gnss
+        ax, ay, az = x[X_AGNSS], x[X_AGNSS + 1], x[X_AGNSS + 2]
+        k0 = c[0] * ax + c[3] * ay + c[6] * az
+        k1 = c[1] * ax + c[4] * ay + c[7] * az
+        k2 = c[2] * ax + c[5] * ay + c[8] * az
+        has_k = True
+    if flags[S_FBAR] == 1:  # the mean of the compensated specific force, no compensation after
+        a = _lowpass_gain(dt, prm[R_ACC_LP])
+        if has_k:
+            fx, fy, fz = fx - k0, fy - k1, fz - k2
+        x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
+        x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
+        x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
+        fx, fy, fz = x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
+        has_k = False
+    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
+        nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
+        _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
+        return
+    y0, y1, y2 = c[6] * -g, c[7] * -g, c[8] * -g  # C_bn (-g_n)
+    h0, h1, h2 = y0, y1, y2
+    if has_k:
+        h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
+    _vector_rows(work, sup[0], y0, y1, y2, prm[R_ACC_VAR])
+    nsup = 3
+    iba = cfg[C_IBA]
+    if iba >= 0:  # (no accelerometer fusion in the INS; kept for the general model)
+        h0, h1, h2 = h0 + x[X_BA], h1 + x[X_BA + 1], h2 + x[X_BA + 2]
+        for k in range(3):
+            for a in range(3):
+                work[W_H + k, iba + a] = 1.0 if k == a else 0.0
+            sup[0, 3 + k] = iba + k
+        nsup = 6
+    nu[0], nu[1], nu[2] = fx - h0, fy - h1, fz - h2
+    sensor, m, ns = np.int64(INN_ACCEL), np.int64(3), np.int64(nsup)
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_ACC])

@@ -1,0 +1,178 @@
+"""Aid source: the magnetometer, in 3-D or as heading only (SPEC 3.3).
+
+* 3-D: ``h = C_bn m_n (+ b_m)``, ``H_att = [h]x`` (and ``I`` on the hard-iron states when
+  the layout carries them), R = mag_sigma^2 I.
+* Heading, "yaw" model: the tilt-compensated heading against the ZYX yaw,
+  ``H = [0, sin r, cos r] / cos p`` (singular at pitch +-90 deg).
+* Heading, "vertical" model: the heading of the nav-frame field ``C_nb m`` against the
+  reference's, corrected about the nav vertical only, ``H_att = (C_bn e_3)^T``.
+
+The reference field ``m_n`` is the site's, or (site unknown) the first sample's with its
+horizontal part taken as north. Preprocessing: an optional low-pass of the field in the
+gyro-compensated frame (mag_lowpass, VQF's tau_mag). Gates: norm and dip disturbance checks
+(mag_norm_gate, mag_dip_gate; a rejected sample logs NaN), then the innovation (gate_mag).
+Innovation key: ``"mag"`` (3 rows in 3-D, 1 for heading).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from windahrs.core.kalman import (
+    _fuse,
+    _log,
+    _lowpass_gain,
+    _vector_rows,
+)
+from windahrs.core.layout import (
+    _JIT,
+    C_HVERT,
+    C_IBM,
+    C_MAG,
+    C_SITE_MAG,
+    INN_MAG,
+    MAG_3D,
+    MAG_OFF,
+    R_GATE2_MAG,
+    R_MAG_DGATE,
+    R_MAG_LP,
+    R_MAG_NGATE,
+    R_MAG_SIGMA,
+    R_MAG_VAR,
+    R_SITE_MAG,
+    S_MAGN,
+    S_MBAR,
+    W_H,
+    W_NU,
+    W_R,
+    X_BM,
+    X_MAGN,
+    X_MBAR,
+    X_Q,
+    X_TMBAR,
+)
+from windahrs.core.quat import (
+    _dcm9,
+    _euler,
+    _quat_from_euler,
+    _wrap_pi,
+)
+
+
+@njit(**_JIT)
+def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
+    """eskf.mag_reference: the site's field, or the sample's with its horizontal part north."""
+    if cfg[C_SITE_MAG] == 1:
+        for a in range(3):
+            x[X_MAGN + a] = prm[R_SITE_MAG + a]
+    else:
+        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        m0 = c[0] * mx + c[1] * my + c[2] * mz
+        m1 = c[3] * mx + c[4] * my + c[5] * mz
+        m2 = c[6] * mx + c[7] * my + c[8] * mz
+        x[X_MAGN] = math.hypot(m0, m1)
+        x[X_MAGN + 1] = 0.0
+        x[X_MAGN + 2] = m2
+    flags[S_MAGN] = 1
+
+
+
+@njit(**_JIT)
+def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
+    """EskfStreamer._mag_disturbed: the field to be fused fails the norm or dip check."""
+    if cfg[C_IBM] >= 0:
+        mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
+    r_norm = math.sqrt(rx * rx + ry * ry + rz * rz)
+    ng = prm[R_MAG_NGATE]
+    if ng > 0 and abs(math.sqrt(mx * mx + my * my + mz * mz) - r_norm) > ng * r_norm:
+        return True
+    dg = prm[R_MAG_DGATE]
+    if dg > 0:
+        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        n0 = c[0] * mx + c[1] * my + c[2] * mz
+        n1 = c[3] * mx + c[4] * my + c[5] * mz
+        n2 = c[6] * mx + c[7] * my + c[8] * mz
+        if abs(math.atan2(n2, math.hypot(n0, n1)) - math.atan2(rz, math.hypot(rx, ry))) > dg:
+            return True
+    return False
+
+
+
+@njit(inline="always", **_JIT)
+def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
+    """A magnetometer sample (finite) of an initialised filter: row[:3] tesla, body, at t s."""
+    mx, my, mz = row[0], row[1], row[2]
+    mode = cfg[C_MAG]
+    if mode == MAG_OFF:
+        return
+    if flags[S_MAGN] == 0:
+        _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
+    rx, ry, rz = x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
+    nu = work[W_NU]
+    if prm[R_MAG_LP] > 0:  # fuse the low-passed field
+        if flags[S_MBAR] == 0:
+            x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2] = mx, my, mz
+            flags[S_MBAR] = 1
+        else:
+            a = _lowpass_gain(t - x[X_TMBAR], prm[R_MAG_LP])
+            x[X_MBAR] = x[X_MBAR] + a * (mx - x[X_MBAR])
+            x[X_MBAR + 1] = x[X_MBAR + 1] + a * (my - x[X_MBAR + 1])
+            x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])
+        x[X_TMBAR] = t
+        mx, my, mz = x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2]
+    if (prm[R_MAG_NGATE] > 0 or prm[R_MAG_DGATE] > 0) and _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
+        nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
+        md = np.int64(3) if mode == MAG_3D else np.int64(1)
+        _log(cfg, flags, inn, acc, nu, np.int64(INN_MAG), t, md, np.nan, np.bool_(False))
+        return
+    if mode == MAG_3D:
+        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        y0 = c[0] * rx + c[3] * ry + c[6] * rz
+        y1 = c[1] * rx + c[4] * ry + c[7] * rz
+        y2 = c[2] * rx + c[5] * ry + c[8] * rz
+        _vector_rows(work, sup[0], y0, y1, y2, prm[R_MAG_VAR])
+        nsup = 3
+        h0, h1, h2 = y0, y1, y2
+        ibm = cfg[C_IBM]
+        if ibm >= 0:  # + bm, H_bm = I
+            h0, h1, h2 = y0 + x[X_BM], y1 + x[X_BM + 1], y2 + x[X_BM + 2]
+            for k in range(3):
+                for a in range(3):
+                    work[W_H + k, ibm + a] = 1.0 if k == a else 0.0
+                sup[0, 3 + k] = ibm + k
+            nsup = 6
+        nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
+        sensor, m, ns = np.int64(INN_MAG), np.int64(3), np.int64(nsup)
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+        return
+    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
+    if cfg[C_HVERT] == 1:
+        # the field's heading in the nav frame against the reference's, corrected about
+        # the nav vertical only: H_att = third row of C_nb
+        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        n0 = c[0] * mx + c[1] * my + c[2] * mz
+        n1 = c[3] * mx + c[4] * my + c[5] * mz
+        nu[0] = _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
+        work[W_H, 0], work[W_H, 1], work[W_H, 2] = c[6], c[7], c[8]
+        sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
+        work[W_R, 0] = sigma**2
+        sensor, m, ns = np.int64(INN_MAG), np.int64(1), np.int64(3)
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+        return
+    # heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate
+    roll, pitch, yaw = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    ql = _quat_from_euler(roll, pitch, 0.0)
+    c = _dcm9(ql[0], ql[1], ql[2], ql[3])
+    m0 = c[0] * mx + c[1] * my + c[2] * mz
+    m1 = c[3] * mx + c[4] * my + c[5] * mz
+    psi_m = math.atan2(ry, rx) - math.atan2(m1, m0)
+    nu[0] = _wrap_pi(psi_m - yaw)
+    cp = math.cos(pitch)
+    work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, math.sin(roll) / cp, math.cos(roll) / cp
+    sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
+    work[W_R, 0] = sigma**2
+    sensor, m, ns = np.int64(INN_MAG), np.int64(1), np.int64(3)
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])

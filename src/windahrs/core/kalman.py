@@ -1,0 +1,256 @@
+"""The one Kalman update of the error-state and additive EKFs, with its gate and its log.
+
+:func:`_fuse` computes the NIS, gates each component at ``gate`` sigmas (the innovation
+test ratio ``nu_k^2 / (gate^2 S_kk)`` of PX4's EKF2), logs the innovation, and applies the
+Joseph-form update, evaluated expanded as ``P + K G^T + G K^T`` with ``U = P H^T`` and
+``G = K S / 2 - U`` (algebraically ``(I - K H) P (I - K H)^T + K R K^T``, exactly symmetric
+in floating point), then injects the correction into the nominal state. An update with m
+rows (1 or 3) whose Jacobian touches c columns costs O(n c m + n^2 m). Every aid source
+(windahrs.aid) fills ``nu``, ``H`` on its support columns and ``R`` in the scratch rows and
+calls it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from windahrs.core.layout import (
+    _JIT,
+    C_ADD,
+    C_CAP,
+    C_IBA,
+    C_IBG,
+    C_IBM,
+    C_IV,
+    C_IW,
+    C_N,
+    C_OFF,
+    L_CNT,
+    L_FIRST,
+    NMAX,
+    S_SEQ,
+    W_DX,
+    W_G,
+    W_H,
+    W_HQ,
+    W_K,
+    W_NU,
+    W_R,
+    W_S,
+    W_SI,
+    W_U,
+    X_BA,
+    X_BG,
+    X_BM,
+    X_Q,
+    X_V,
+    X_W,
+)
+from windahrs.core.predict import (
+    _normalise_add,
+)
+from windahrs.core.quat import (
+    _qexp,
+    _qmul,
+    _qnormalize,
+)
+
+
+@njit(inline="always", **_JIT)
+def _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted):
+    """Streamer._log: t, nu[:m] (NaN-padded to 3), nis, accepted."""
+    c = flags[L_CNT + sensor]
+    if c >= cfg[C_CAP + sensor]:
+        raise IndexError("innovation log full")
+    if c == 0:
+        flags[L_FIRST + sensor] = flags[S_SEQ]
+        flags[S_SEQ] += 1
+    row = cfg[C_OFF + sensor] + c
+    inn[row, 0] = t
+    for i in range(3):
+        inn[row, 1 + i] = nu[i] if i < m else np.nan
+    inn[row, 4] = nis
+    acc[row] = accepted
+    flags[L_CNT + sensor] = c + 1
+
+
+
+@njit(**_JIT)
+def _lowpass_gain(dt, tau):
+    """eskf.lowpass_gain: weight of a new sample in a first-order low-pass after dt."""
+    return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
+
+
+
+@njit(**_JIT)
+def _inverse_small(S, Si, m):
+    """Si = S^-1 for m = 1 or 3 (cofactors; S is a well-conditioned innovation covariance)."""
+    if m == 1:
+        Si[0, 0] = 1.0 / S[0, 0]
+        return
+    a, b, c = S[0, 0], S[0, 1], S[0, 2]
+    d, e, f = S[1, 0], S[1, 1], S[1, 2]
+    g, h, i = S[2, 0], S[2, 1], S[2, 2]
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    r = 1.0 / (a * A + b * B + c * C)
+    Si[0, 0], Si[0, 1], Si[0, 2] = A * r, (c * h - b * i) * r, (b * f - c * e) * r
+    Si[1, 0], Si[1, 1], Si[1, 2] = B * r, (a * i - c * g) * r, (c * d - a * f) * r
+    Si[2, 0], Si[2, 1], Si[2, 2] = C * r, (b * g - a * h) * r, (a * e - b * d) * r
+
+
+@njit(**_JIT)
+def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
+    """EskfStreamer._fuse / Ekf7Streamer._fuse: NIS, gate, log, Joseph update, injection.
+
+    The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m], H = work[W_H:W_H+m]
+    on the error-state columns sup[0, :nsup] (the attitude columns 0..2 always written);
+    m is 1 or 3. Returns whether the update was accepted.
+
+    Loops run over whole padded rows of P (constant length NMAX) with every row of the
+    measurement in one pass, which lets the compiler vectorise them."""
+    n = cfg[C_N]
+    H, sup = work[W_H : W_H + 3], sups[0]
+    Hm, cols, nc = H, sup, nsup
+    if cfg[C_ADD] == 1:
+        Hq = work[W_HQ : W_HQ + 3]
+        cols = sups[1]
+        q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+        for k in range(m):  # 2 H_att Xi(q)^T
+            h0, h1, h2 = 2.0 * H[k, 0], 2.0 * H[k, 1], 2.0 * H[k, 2]
+            Hq[k, 0] = -h0 * q1 - h1 * q2 - h2 * q3
+            Hq[k, 1] = h0 * q0 - h1 * q3 + h2 * q2
+            Hq[k, 2] = h0 * q3 + h1 * q0 - h2 * q1
+            Hq[k, 3] = -h0 * q2 + h1 * q1 + h2 * q0
+        for c in range(4):
+            cols[c] = c
+        nc = 4
+        for ci in range(nsup):
+            c = sup[ci]
+            if c >= 3:
+                cols[nc] = c + 1
+                nc += 1
+                for k in range(m):
+                    Hq[k, c + 1] = H[k, c]
+        Hm = Hq
+    U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
+    R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
+    nu, dx = work[W_NU], work[W_DX]
+    # U = H P, whole padded rows (P is exactly symmetric, so U^T = P H^T exactly)
+    for k in range(m):
+        for j in range(NMAX):
+            U[k, j] = 0.0
+    for ci in range(nc):
+        c = cols[ci]
+        if m == 3:
+            h0, h1, h2 = Hm[0, c], Hm[1, c], Hm[2, c]
+            for j in range(NMAX):
+                p = P[c, j]
+                U[0, j] += h0 * p
+                U[1, j] += h1 * p
+                U[2, j] += h2 * p
+        else:
+            h0 = Hm[0, c]
+            for j in range(NMAX):
+                U[0, j] += h0 * P[c, j]
+    for k in range(m):
+        for l in range(m):
+            s = 0.0
+            for ci in range(nc):
+                c = cols[ci]
+                s += Hm[k, c] * U[l, c]
+            S[k, l] = s + R[k, l]
+    _inverse_small(S, Si, m)
+    # NIS, gate (each component within gate sigmas), log
+    nis = 0.0
+    bad = 0
+    for k in range(m):
+        v = 0.0
+        for l in range(m):
+            v += Si[k, l] * nu[l]
+        nis += nu[k] * v
+        if not (nu[k] * nu[k] <= gate2 * S[k, k]):
+            bad += 1
+    accepted = bad == 0
+    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
+    if not accepted:
+        return False
+    # K^T = S^-1 H P; Joseph form expanded: P - K U^T - U K^T + K S K^T = P + K G^T + G K^T
+    # with G = K S / 2 - U^T. Each entry adds K_ik G_jk + G_ik K_jk in the same order as
+    # its mirror entry, so P stays exactly symmetric in floating point.
+    if m == 3:
+        i00, i01, i02, i10, i11, i12 = Si[0, 0], Si[0, 1], Si[0, 2], Si[1, 0], Si[1, 1], Si[1, 2]
+        i20, i21, i22 = Si[2, 0], Si[2, 1], Si[2, 2]
+        s00, s01, s02, s10, s11, s12 = S[0, 0], S[0, 1], S[0, 2], S[1, 0], S[1, 1], S[1, 2]
+        s20, s21, s22 = S[2, 0], S[2, 1], S[2, 2]
+        n0, n1, n2 = nu[0], nu[1], nu[2]
+        for j in range(NMAX):
+            u0, u1, u2 = U[0, j], U[1, j], U[2, j]
+            k0 = i00 * u0 + i01 * u1 + i02 * u2
+            k1 = i10 * u0 + i11 * u1 + i12 * u2
+            k2 = i20 * u0 + i21 * u1 + i22 * u2
+            Kt[0, j], Kt[1, j], Kt[2, j] = k0, k1, k2
+            dx[j] = k0 * n0 + k1 * n1 + k2 * n2  # K nu
+            Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1 + s20 * k2) - u0
+            Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1 + s21 * k2) - u1
+            Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
+        for i in range(n):
+            a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
+            for j in range(NMAX):
+                P[i, j] = ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
+                    a2 * Gt[2, j] + b2 * Kt[2, j]
+                )
+    else:
+        i00, s00, n0 = Si[0, 0], S[0, 0], nu[0]
+        for j in range(NMAX):
+            k0 = i00 * U[0, j]
+            Kt[0, j] = k0
+            dx[j] = k0 * n0
+            Gt[0, j] = 0.5 * (s00 * k0) - U[0, j]
+        for i in range(n):
+            a0, b0 = Kt[0, i], Gt[0, i]
+            for j in range(NMAX):
+                P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
+    ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
+    if cfg[C_ADD] == 1:
+        for a in range(3):
+            x[X_BG + a] += dx[ib + 1 + a]
+            if iw >= 0:
+                x[X_W + a] += dx[iw + 1 + a]
+        _normalise_add(
+            cfg, x, P, work, x[X_Q] + dx[0], x[X_Q + 1] + dx[1], x[X_Q + 2] + dx[2], x[X_Q + 3] + dx[3]
+        )
+    else:
+        e = _qexp(dx[0], dx[1], dx[2])
+        q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
+        x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+        for a in range(3):
+            x[X_BG + a] += dx[ib + a]
+            if iv >= 0:
+                x[X_V + a] += dx[iv + a]
+            if iw >= 0:
+                x[X_W + a] += dx[iw + a]
+            if iba >= 0:
+                x[X_BA + a] += dx[iba + a]
+            if cfg[C_IBM] >= 0:
+                x[X_BM + a] += dx[cfg[C_IBM] + a]
+    return True
+
+
+@njit(**_JIT)
+def _vector_rows(work, sup, y0, y1, y2, var):
+    """A 3-row measurement with H_att = [y]x and R = var I (accelerometer, magnetometer);
+    sup: the support row."""
+    H, R = work[W_H : W_H + 3], work[W_R : W_R + 3]
+    H[0, 0], H[0, 1], H[0, 2] = 0.0, -y2, y1
+    H[1, 0], H[1, 1], H[1, 2] = y2, 0.0, -y0
+    H[2, 0], H[2, 1], H[2, 2] = -y1, y0, 0.0
+    for k in range(3):
+        sup[k] = k
+        for l in range(3):
+            R[k, l] = var if k == l else 0.0
+
+
+# --- event steps --------------------------------------------------------------------------

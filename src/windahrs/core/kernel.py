@@ -1,0 +1,780 @@
+"""The compiled event loop of the error-state and additive EKFs: initialisation, the
+prediction at each IMU sample, the dispatch of every other sample to its aid sources
+(windahrs.aid), recording, and the Python side (encoding parameters once into a
+:class:`KernelState`, the batch run and the streamer).
+
+Event order: samples are processed in time order; at equal times the IMU sample comes
+first (propagation to ``t``), then magnetometer, GNSS and air data. The batch run feeds
+:func:`run_events` the whole merged event list; :class:`CompiledStreamer` feeds it one
+event at a time (without recording), so a flight streamed equals its batch run bit for bit.
+Nothing is allocated inside the loop.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from numba import njit
+
+from windahrs.aid.air_vector import (
+    fuse_air_vector,
+    init_wind,
+)
+from windahrs.aid.air_velocity import (
+    remember_air,
+)
+from windahrs.aid.gnss_vel import (
+    fuse_gnss,
+    remember_gnss,
+)
+from windahrs.aid.gravity import (
+    fuse_gravity,
+)
+from windahrs.aid.mag import (
+    _set_mag_reference,
+    fuse_mag,
+)
+from windahrs.aid.sideslip import (
+    fuse_sideslip,
+)
+from windahrs.aid.tas import (
+    fuse_tas,
+)
+from windahrs.core.layout import (
+    _JIT,
+    AIR_AIRSPEED,
+    AIR_AUTO,
+    AIR_OFF,
+    AIR_VECTOR,
+    C_ADD,
+    C_AIR,
+    C_CAP,
+    C_COMP,
+    C_DIM,
+    C_HVERT,
+    C_IBA,
+    C_IBG,
+    C_IBM,
+    C_INI,
+    C_INI_BG,
+    C_INI_V,
+    C_INI_W,
+    C_IV,
+    C_IW,
+    C_KIND,
+    C_MAG,
+    C_N,
+    C_OFF,
+    C_SITE_MAG,
+    C_SYN,
+    C_WAIT_GNSS,
+    C_WAIT_MAG,
+    COMP_AIRSPEED,
+    COMP_GNSS,
+    COMP_NONE,
+    F64,
+    I64,
+    K_SKIP,
+    KIND_INS,
+    KIND_MEKF,
+    KIND_MEKF_AIR,
+    L_CNT,
+    L_FIRST,
+    MAG_3D,
+    MAG_HEADING,
+    MAG_OFF,
+    N_CFG,
+    N_FLAGS,
+    N_PRM,
+    N_SENSORS,
+    N_WORK,
+    N_X,
+    NMAX,
+    R_ACC_LP,
+    R_ACC_VAR,
+    R_BETA_VAR,
+    R_GATE2_ACC,
+    R_GATE2_AIR,
+    R_GATE2_GNSS,
+    R_GATE2_MAG,
+    R_GNSS_VAR,
+    R_GRAV,
+    R_INI_BG,
+    R_INI_Q,
+    R_INI_V,
+    R_INI_W,
+    R_MAG_DGATE,
+    R_MAG_LP,
+    R_MAG_NGATE,
+    R_MAG_SIGMA,
+    R_MAG_VAR,
+    R_NORM_GATE,
+    R_P0_ATT,
+    R_P0_BA,
+    R_P0_BG,
+    R_P0_BM,
+    R_P0_V,
+    R_P0_W,
+    R_SA2,
+    R_SB2,
+    R_SBA2,
+    R_SBM2,
+    R_SCALE2,
+    R_SG2,
+    R_SITE_MAG,
+    R_TAS_VAR,
+    R_VANE_VAR,
+    R_WH2,
+    R_WV2,
+    S_FBAR,
+    S_FLAST,
+    S_FMAG,
+    S_FV,
+    S_INIT,
+    S_MBAR,
+    S_VGNSS,
+    S_WPEND,
+    SENSOR_ROWS,
+    SENSOR_STREAMS,
+    SENSORS,
+    W_M,
+    X_BA,
+    X_BG,
+    X_BM,
+    X_FBAR,
+    X_FLAST,
+    X_FMAG,
+    X_FV,
+    X_MBAR,
+    X_Q,
+    X_TIMU,
+    X_V,
+    X_W,
+    KernelState,
+)
+from windahrs.core.predict import (
+    _predict_add,
+    _predict_es,
+)
+from windahrs.core.quat import (
+    _dcm9,
+    _qexp,
+    _triad,
+    _xi_into,
+)
+from windahrs.estimate import Estimate, Innovations
+from windahrs.filters.base import (
+    EVENT_AIR,
+    EVENT_GNSS,
+    EVENT_IMU,
+    EVENT_MAG,
+    Estimator,
+    InitialState,
+    StateView,
+    Streamer,
+    merge_events,
+)
+from windahrs.filters.params import EskfParams
+from windahrs.flight import Flight, Site
+from windahrs.models.error_state import Layout
+
+
+@njit(**_JIT)
+def _try_init(cfg, prm, x, flags, P, work):
+    """EskfStreamer._try_init (and Ekf7Streamer's covariance on the quaternion)."""
+    if flags[S_INIT] == 1 or flags[S_FLAST] == 0:
+        return
+    if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:
+        return
+    if cfg[C_WAIT_GNSS] == 1 and flags[S_FV] == 0:
+        return
+    if cfg[C_INI] == 1:
+        q = (prm[R_INI_Q], prm[R_INI_Q + 1], prm[R_INI_Q + 2], prm[R_INI_Q + 3])
+    else:
+        q = _triad(
+            x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2],
+            flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
+            cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
+        )  # fmt: skip
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = q
+    iv, ib, iw, iba = cfg[C_IV], cfg[C_IBG], cfg[C_IW], cfg[C_IBA]
+    for a in range(3):
+        x[X_BG + a] = prm[R_INI_BG + a] if cfg[C_INI_BG] == 1 else 0.0
+        if iv >= 0:
+            x[X_V + a] = prm[R_INI_V + a] if cfg[C_INI_V] == 1 else x[X_FV + a]
+        if iw >= 0:
+            x[X_W + a] = prm[R_INI_W + a] if cfg[C_INI_W] == 1 else 0.0
+        x[X_BA + a] = 0.0
+        x[X_BM + a] = 0.0
+    for i in range(NMAX):
+        for j in range(NMAX):
+            P[i, j] = 0.0
+    off = cfg[C_ADD]  # covariance index = error-state index + 1 after the quaternion
+    for a in range(3):
+        P[ib + off + a, ib + off + a] = prm[R_P0_BG]
+        if iv >= 0:
+            P[iv + off + a, iv + off + a] = prm[R_P0_V]
+        if iw >= 0:
+            P[iw + off + a, iw + off + a] = prm[R_P0_W]
+        if iba >= 0:
+            P[iba + off + a, iba + off + a] = prm[R_P0_BA]
+        if cfg[C_IBM] >= 0:
+            P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm[R_P0_BM]
+    if cfg[C_ADD] == 1:
+        # quat_cov_from_att_cov: 1/4 Xi P_att Xi^T with P_att = var I
+        Xi = work[W_M + 4 : W_M + 8]
+        _xi_into(q[0], q[1], q[2], q[3], Xi)
+        var = prm[R_P0_ATT]
+        for r in range(4):
+            for c in range(4):
+                s = 0.0
+                for k in range(3):
+                    s += Xi[r, k] * var * Xi[c, k]
+                P[r, c] = 0.25 * s
+    else:
+        for a in range(3):
+            P[a, a] = prm[R_P0_ATT]
+    if flags[S_FMAG] == 1:
+        _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
+    elif cfg[C_SITE_MAG] == 1:
+        _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
+    if prm[R_ACC_LP] > 0:
+        for a in range(3):
+            x[X_FBAR + a] = x[X_FLAST + a]
+        flags[S_FBAR] = 1
+    flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
+    flags[S_INIT] = 1
+
+
+
+@njit(**_JIT)
+def _rotate_lowpass(x, flags, wx, wy, wz, dt):
+    """EskfStreamer._rotate_lowpass: the low-passed vectors into the new body frame,
+    v <- C(Exp(w dt))^T v (w bias-corrected)."""
+    e = _qexp(wx * dt, wy * dt, wz * dt)
+    c = _dcm9(e[0], e[1], e[2], e[3])
+    if flags[S_FBAR] == 1:
+        _rotate_into(c, x, np.int64(X_FBAR))
+    if flags[S_MBAR] == 1:
+        _rotate_into(c, x, np.int64(X_MBAR))
+
+
+@njit(**_JIT)
+def _rotate_into(c, x, i0):
+    """x[i0:i0+3] <- C^T x[i0:i0+3] (c: C row-major)."""
+    v0, v1, v2 = x[i0], x[i0 + 1], x[i0 + 2]
+    x[i0] = c[0] * v0 + c[3] * v1 + c[6] * v2
+    x[i0 + 1] = c[1] * v0 + c[4] * v1 + c[7] * v2
+    x[i0 + 2] = c[2] * v0 + c[5] * v1 + c[8] * v2
+
+
+
+@njit(inline="always", **_JIT)
+def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
+    """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s
+    propagation, then the accelerometer's aid source."""
+    fx, fy, fz = row[3], row[4], row[5]
+    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = fx, fy, fz
+    flags[S_FLAST] = 1
+    if flags[S_INIT] == 0:
+        _try_init(cfg, prm, x, flags, P, work)
+        x[X_TIMU] = t
+        return
+    dt = t - x[X_TIMU]
+    x[X_TIMU] = t
+    if dt > 0:
+        if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
+            _rotate_lowpass(x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+        if cfg[C_ADD] == 1:
+            _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
+        else:
+            _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
+    if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
+        fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
+
+
+@njit(inline="always", **_JIT)
+def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
+    """A magnetometer sample (finite): row[:3] tesla, body, at t s; before initialisation
+    the first sample is kept for the initial heading."""
+    if flags[S_INIT] == 0:
+        if flags[S_FMAG] == 0:
+            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
+            flags[S_FMAG] = 1
+        _try_init(cfg, prm, x, flags, P, work)
+        return
+    fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+
+
+@njit(inline="always", **_JIT)
+def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
+    """A GNSS velocity sample (finite): row[:3] m/s NED, at t s; before initialisation the
+    first sample is kept for the initial velocity."""
+    remember_gnss(x, flags, t, row)
+    if flags[S_INIT] == 0:
+        if flags[S_FV] == 0:
+            for a in range(3):
+                x[X_FV + a] = row[a]
+            flags[S_FV] = 1
+        _try_init(cfg, prm, x, flags, P, work)
+        return
+    fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+
+
+@njit(inline="always", **_JIT)
+def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
+    """An air-data sample: tas m/s (finite), aoa and sideslip rad (NaN: no vanes), at t s,
+    to its aid sources: the air-data vector with both vanes (air_mode "vector", or "auto"),
+    else true airspeed and (synthetic_sideslip) a zero sideslip."""
+    vanes, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
+    kind = cfg[C_KIND]
+    if flags[S_INIT] == 0 or kind == KIND_MEKF or cfg[C_AIR] == AIR_OFF:
+        return
+    extra = 0.0
+    if kind == KIND_MEKF_AIR:  # GNSS velocity as an input
+        if flags[S_VGNSS] == 0:
+            return
+        extra = prm[R_GNSS_VAR]
+    use_v = cfg[C_IV] >= 0
+    if flags[S_WPEND] == 1:
+        init_wind(x, flags, use_v, vanes)
+    mode = cfg[C_AIR]
+    if mode == AIR_AUTO:
+        mode = AIR_VECTOR if vanes else AIR_AIRSPEED
+    if mode == AIR_VECTOR and vanes:
+        fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra)
+        return
+    fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
+    if cfg[C_SYN] == 1:  # at the state after the airspeed update
+        fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
+
+
+@njit(inline="always", **_JIT)
+def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
+    """The current state (EskfStreamer.state) into row k of the outputs: q (N, 4), bias
+    (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
+    covariance (N, d, d) (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I))."""
+    d = cfg[C_DIM]
+    iv, iw = cfg[C_IV], cfg[C_IW]
+    if flags[S_INIT] == 0:
+        q = (1.0, 0.0, 0.0, 0.0)
+        if flags[S_FLAST] == 1:
+            no = np.bool_(False)
+            q = _triad(x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2], no, 0.0, 0.0, 0.0, no, 0.0, 0.0, 0.0)
+        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q
+        for a in range(3):
+            out_bg[k, a] = 0.0
+            if iv >= 0:
+                out_v[k, a] = np.nan
+            if iw >= 0:
+                out_w[k, a] = np.nan
+        for i in range(d):
+            for j in range(d):
+                out_cov[k, i, j] = np.nan
+        return
+    # (the covariance first, then the vectors, loaded before they are stored: measurably
+    # faster code)
+    if cfg[C_ADD] == 0:
+        for i in range(d):
+            for j in range(d):
+                out_cov[k, i, j] = P[i, j]
+    else:
+        _record_tangent_cov(cfg, x, P, work, k, out_cov)
+    q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    b0, b1, b2 = x[X_BG], x[X_BG + 1], x[X_BG + 2]
+    out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q0, q1, q2, q3
+    out_bg[k, 0], out_bg[k, 1], out_bg[k, 2] = b0, b1, b2
+    if iv >= 0:
+        out_v[k, 0], out_v[k, 1], out_v[k, 2] = x[X_V], x[X_V + 1], x[X_V + 2]
+    if iw >= 0:
+        out_w[k, 0], out_w[k, 1], out_w[k, 2] = x[X_W], x[X_W + 1], x[X_W + 2]
+
+
+@njit(**_JIT)
+def _record_tangent_cov(cfg, x, P, work, k, out_cov):
+    """Ekf7Streamer._tangent_cov into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)."""
+    Xi = work[W_M + 4 : W_M + 8]
+    _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
+    n = cfg[C_N]
+    for r in range(3):
+        for j in range(4, n):
+            v = (
+                2.0 * Xi[0, r] * P[0, j]
+                + 2.0 * Xi[1, r] * P[1, j]
+                + 2.0 * Xi[2, r] * P[2, j]
+                + (2.0 * Xi[3, r] * P[3, j])
+            )
+            out_cov[k, r, j - 1] = v
+            out_cov[k, j - 1, r] = v
+        for c in range(3):
+            s = 0.0
+            for a in range(4):
+                for b in range(4):
+                    s += Xi[a, r] * P[a, b] * Xi[b, c]
+            out_cov[k, r, c] = 4.0 * s
+    for i in range(4, n):
+        for j in range(4, n):
+            out_cov[k, i - 1, j - 1] = P[i, j]
+
+
+@njit(**_JIT)
+def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec):
+    """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6)),
+    skip and count NaN samples, and (rec) record for IMU sample k the state after every
+    event with t <= t_imu[k] (before the next IMU sample).
+
+    The streamer calls it with one event at a time and rec=False: the per-kind step
+    functions are inlined into this one compiled function, which batch and stream share
+    (and numba compiles the filter once)."""
+    k = np.int64(-1)
+    cfg, prm, x, flags, P, work, sup, inn, acc = st  # once: each extraction costs refcounting
+    n_ev = t_ev.shape[0]
+    for i in range(n_ev):
+        kind = kinds[i]
+        t = t_ev[i]
+        row = vals[i]
+        if kind == EVENT_IMU:
+            k += 1
+            ok = True
+            for a in range(6):
+                if not math.isfinite(row[a]):
+                    ok = False
+            if ok:
+                step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+            else:
+                flags[K_SKIP] += 1
+        elif kind == EVENT_MAG:
+            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
+                step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+            else:
+                flags[K_SKIP + 1] += 1
+        elif kind == EVENT_GNSS:
+            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
+                step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+            else:
+                flags[K_SKIP + 2] += 1
+        elif kind == EVENT_AIR:
+            if math.isfinite(row[0]):
+                step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, row[0], row[1], row[2])
+            else:
+                flags[K_SKIP + 3] += 1
+        # IMU sample k gets the state after the last event before the next IMU sample
+        if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
+            record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
+
+
+# --- Python side: encoding, estimators, streamer -------------------------------------------
+
+
+
+_KINDS = {"mekf": KIND_MEKF, "mekf-air": KIND_MEKF_AIR, "ins-wind": KIND_INS}
+_COMP = {"none": COMP_NONE, "gnss": COMP_GNSS, "airspeed": COMP_AIRSPEED}
+_MAG = {"3d": MAG_3D, "heading": MAG_HEADING, "off": MAG_OFF}
+_AIR = {"auto": AIR_AUTO, "vector": AIR_VECTOR, "airspeed": AIR_AIRSPEED, "off": AIR_OFF}
+_STREAMS = ("imu", "mag", "gnss", "air")
+
+
+Kind = Literal["mekf", "mekf-air", "ins-wind"]
+
+
+def effective_mag_mode(params: EskfParams, site: Site) -> Literal["3d", "heading", "off"]:
+    """How the magnetometer is fused: ``params.mag_mode``, except "3d" becomes "heading"
+    with ``mag_3d_needs_site`` when the site's field is unknown (its dip would come from
+    one sample)."""
+    if params.mag_mode == "3d" and params.mag_3d_needs_site and site.mag_n is None:
+        return "heading"
+    return params.mag_mode
+
+
+def layout_for(kind: Kind, params: EskfParams, *, additive: bool = False) -> Layout:
+    """The error-state blocks of ``kind`` with ``params``: [ins-wind] adds velocity and
+    (accel_bias_noise > 0) accelerometer bias; [mekf-air] and [ins-wind] wind; every kind a
+    magnetometer bias when ``init_mag_bias > 0`` with the 3-D magnetometer, except the
+    quaternion-additive filters (``additive``: [ekf7], [ekf10]). The kernels assume the
+    attitude at 0 and the velocity at 3."""
+    blocks = ["att", "bg"]
+    if kind == "ins-wind":
+        blocks.insert(1, "v")
+    if kind in ("mekf-air", "ins-wind"):
+        blocks.append("wind")
+    if kind == "ins-wind" and params.accel_bias_noise > 0:
+        blocks.append("ba")
+    if params.init_mag_bias > 0 and params.mag_mode == "3d" and not additive:
+        blocks.append("bm")
+    L = Layout(tuple(blocks))
+    if L.dim + int(additive) >= NMAX:
+        raise AssertionError(f"compiled kernels cannot run the layout {L.blocks}")
+    return L
+
+
+def _vec(a: Any, n: int, name: str) -> F64:
+    v = np.asarray(a, dtype=np.float64)
+    if v.shape != (n,):
+        raise ValueError(f"initial.{name}: expected shape ({n},), found {v.shape}")
+    return v
+
+
+def _log_layout(cfg: I64, caps: I64) -> int:
+    cfg[C_CAP : C_CAP + N_SENSORS] = caps
+    cfg[C_OFF : C_OFF + N_SENSORS] = np.concatenate([[0], np.cumsum(caps)[:-1]])
+    return int(caps.sum())
+
+
+def make_state(
+    kind: Kind,
+    additive: bool,
+    params: EskfParams,
+    site: Site,
+    initial: InitialState | None,
+    has: frozenset[str],
+    caps: I64,
+) -> KernelState:
+    """A fresh KernelState, parameters and modes encoded once. kind: "mekf", "mekf-air"
+    or "ins-wind"; additive: the quaternion-additive form (ekf7/ekf10); has: the streams
+    that will be fed; caps (N_SENSORS,): innovation log rows per sensor (SENSORS order)."""
+    p, ini = params, initial
+    L = layout_for(kind, p, additive=additive)
+    dim = L.dim
+    n = dim + 1 if additive else dim
+    cfg = np.zeros(N_CFG, dtype=np.int64)
+    cfg[C_KIND] = _KINDS[kind]
+    cfg[C_ADD] = int(additive)
+    cfg[C_COMP] = COMP_AIRSPEED if kind == "mekf-air" else _COMP[p.accel_compensation]
+    cfg[C_MAG] = _MAG[effective_mag_mode(p, site)]
+    cfg[C_HVERT] = int(p.heading_model == "vertical")
+    cfg[C_AIR] = _AIR[p.air_mode]
+    cfg[C_SYN] = int(p.synthetic_sideslip)
+    cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
+    cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
+    cfg[C_INI] = int(ini is not None)
+    cfg[C_INI_BG] = int(ini is not None and ini.gyro_bias_b is not None)
+    cfg[C_INI_V] = int(ini is not None and ini.v_n is not None)
+    cfg[C_INI_W] = int(ini is not None and ini.wind_n is not None)
+    cfg[C_SITE_MAG] = int(site.mag_n is not None)
+    cfg[C_IV] = L.sl("v").start if L.has("v") else -1
+    cfg[C_IBG] = L.sl("bg").start
+    cfg[C_IW] = L.sl("wind").start if L.has("wind") else -1
+    cfg[C_IBA] = L.sl("ba").start if L.has("ba") else -1
+    cfg[C_IBM] = L.sl("bm").start if L.has("bm") else -1
+    cfg[C_DIM] = dim
+    cfg[C_N] = n
+    total = _log_layout(cfg, np.asarray(caps, dtype=np.int64))
+
+    def sig(given: float | None, default: float) -> float:
+        return default if given is None else given
+
+    prm = np.zeros(N_PRM)
+    prm[R_SG2] = p.gyro_noise**2
+    prm[R_SB2] = p.gyro_bias_noise**2
+    prm[R_SA2] = p.accel_noise**2
+    prm[R_SBA2] = p.accel_bias_noise**2
+    prm[R_WH2] = p.wind_noise**2
+    prm[R_WV2] = p.wind_noise_vertical**2
+    prm[R_ACC_VAR] = p.accel_sigma**2
+    prm[R_NORM_GATE] = p.accel_norm_gate
+    prm[R_MAG_SIGMA] = p.mag_sigma
+    prm[R_MAG_VAR] = p.mag_sigma**2
+    prm[R_GNSS_VAR] = p.gnss_sigma**2
+    prm[R_TAS_VAR] = p.tas_sigma**2
+    prm[R_VANE_VAR] = p.vane_sigma**2
+    prm[R_BETA_VAR] = p.sideslip_sigma**2
+    prm[R_GATE2_ACC] = p.gate_accel**2
+    prm[R_GATE2_MAG] = p.gate_mag**2
+    prm[R_GATE2_GNSS] = p.gate_gnss**2
+    prm[R_GATE2_AIR] = p.gate_air**2
+    # EskfStreamer._try_init's defaults
+    prm[R_P0_ATT] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
+    prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
+    prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
+    prm[R_P0_W] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2
+    prm[R_P0_BA] = p.init_accel_bias**2
+    prm[R_P0_BM] = p.init_mag_bias**2
+    prm[R_SBM2] = p.mag_bias_noise**2
+    prm[R_ACC_LP] = p.accel_lowpass
+    prm[R_MAG_LP] = p.mag_lowpass
+    prm[R_SCALE2] = p.gyro_scale_noise**2
+    prm[R_MAG_NGATE] = p.mag_norm_gate
+    prm[R_MAG_DGATE] = p.mag_dip_gate
+    prm[R_GRAV] = site.gravity_n[2]
+    if site.mag_n is not None:
+        prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
+    if ini is not None:
+        prm[R_INI_Q : R_INI_Q + 4] = _vec(ini.q_nb, 4, "q_nb")
+        if ini.gyro_bias_b is not None:
+            prm[R_INI_BG : R_INI_BG + 3] = _vec(ini.gyro_bias_b, 3, "gyro_bias_b")
+        if ini.v_n is not None:
+            prm[R_INI_V : R_INI_V + 3] = _vec(ini.v_n, 3, "v_n")
+        if ini.wind_n is not None:
+            prm[R_INI_W : R_INI_W + 3] = _vec(ini.wind_n, 3, "wind_n")
+    flags = np.zeros(N_FLAGS, dtype=np.int64)
+    flags[L_FIRST : L_FIRST + N_SENSORS] = -1
+    return KernelState(
+        cfg=cfg,
+        prm=prm,
+        x=np.zeros(N_X),
+        flags=flags,
+        P=np.zeros((NMAX, NMAX)),
+        work=np.zeros((N_WORK, NMAX)),
+        sup=np.zeros((2, NMAX), dtype=np.int64),
+        inn=np.empty((total, 5)),
+        acc=np.zeros(total, dtype=np.bool_),
+    )
+
+
+def _innovations(st: KernelState, mag_mode: str) -> dict[str, Innovations]:
+    """The logs as Estimate innovations, keyed in the order sensors first logged."""
+    cnt, first = st.flags[L_CNT : L_CNT + N_SENSORS], st.flags[L_FIRST : L_FIRST + N_SENSORS]
+    out: dict[str, Innovations] = {}
+    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0), key=lambda s: int(first[s])):
+        o, c = int(st.cfg[C_OFF + s]), int(cnt[s])
+        name = SENSORS[s]
+        rows = 1 if name == "mag" and mag_mode == "heading" else SENSOR_ROWS[s]
+        out[name] = Innovations(
+            t=st.inn[o : o + c, 0].copy(),
+            nu=st.inn[o : o + c, 1 : 1 + rows].copy(),
+            nis=st.inn[o : o + c, 4].copy(),
+            accepted=st.acc[o : o + c].copy(),
+        )
+    return out
+
+
+def _grow(st: KernelState) -> KernelState:
+    """The same state with twice the log capacity for every full sensor log."""
+    cnt = st.flags[L_CNT : L_CNT + N_SENSORS]
+    caps = st.cfg[C_CAP : C_CAP + N_SENSORS].copy()
+    caps[cnt >= caps] *= 2
+    cfg = st.cfg.copy()
+    total = _log_layout(cfg, caps)
+    inn, acc = np.empty((total, 5)), np.zeros(total, dtype=np.bool_)
+    for s in range(N_SENSORS):
+        o, c, o2 = int(st.cfg[C_OFF + s]), int(cnt[s]), int(cfg[C_OFF + s])
+        inn[o2 : o2 + c] = st.inn[o : o + c]
+        acc[o2 : o2 + c] = st.acc[o : o + c]
+    return st._replace(cfg=cfg, inn=inn, acc=acc)
+
+
+class CompiledStreamer(Streamer):
+    """A compiled filter fed sample by sample through the same step functions as the
+    batch run (so a flight streamed equals its batch estimate)."""
+
+    def __init__(
+        self,
+        name: str,
+        kind: Kind,
+        additive: bool,
+        params: EskfParams,
+        site: Site,
+        initial: InitialState | None,
+        has: frozenset[str],
+    ) -> None:
+        super().__init__(name)
+        self.kind = kind
+        self.params = params
+        self.layout = layout_for(kind, params, additive=additive)
+        self._st = make_state(kind, additive, params, site, initial, has, np.full(N_SENSORS, 256, dtype=np.int64))
+        self._mag_fusion = effective_mag_mode(params, site)
+        # one event at a time through the batch loop, without recording
+        self._t = np.zeros(1)
+        self._kind = np.zeros(1, dtype=np.int64)
+        self._row = np.zeros((1, 6))
+        self._none = (
+            np.empty((0, 4)),
+            np.empty((0, 3)),
+            np.empty((0, 3)),
+            np.empty((0, 3)),
+            np.empty((0, 0, 0)),
+        )
+
+    def _step(self, kind: int, t: float) -> None:
+        if (self._st.flags[L_CNT : L_CNT + N_SENSORS] >= self._st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
+            self._st = _grow(self._st)  # an event logs at most one row per sensor
+        self._t[0] = t
+        self._kind[0] = kind
+        run_events(self._st, self._t, self._kind, self._row, *self._none, False)
+
+    def _imu(self, t: float, w_b: F64, f_b: F64) -> None:
+        self._row[0, :3] = w_b
+        self._row[0, 3:6] = f_b
+        self._step(EVENT_IMU, t)
+
+    def _mag(self, t: float, mag_b: F64) -> None:
+        self._row[0, :3] = mag_b
+        self._step(EVENT_MAG, t)
+
+    def _gnss(self, t: float, v_n: F64) -> None:
+        self._row[0, :3] = v_n
+        self._step(EVENT_GNSS, t)
+
+    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
+        self._row[0, :3] = (tas, aoa, sideslip)
+        self._step(EVENT_AIR, t)
+
+    def innovations(self) -> dict[str, Innovations]:
+        return _innovations(self._st, self._mag_fusion)
+
+    @property
+    def state(self) -> StateView:
+        d = self.layout.dim
+        q, bg, v, w = np.empty((1, 4)), np.empty((1, 3)), np.empty((1, 3)), np.empty((1, 3))
+        cov = np.empty((1, d, d))
+        st = self._st
+        record(st.cfg, st.x, st.flags, st.P, st.work, 0, q, bg, v, w, cov)
+        return StateView(
+            t=self._t_last,
+            q_nb=q[0],
+            gyro_bias_b=bg[0],
+            v_n=v[0] if self.layout.has("v") else None,
+            wind_n=w[0] if self.layout.has("wind") else None,
+            cov=cov[0],
+            state_labels=self.layout.labels(),
+        )
+
+
+class CompiledEstimator(Estimator):
+    """An estimator on the compiled core: a process model (``kind``; ``additive`` for the
+    quaternion-additive form) and the aid sources its parameters switch on. ``run`` is one
+    compiled loop over the flight; ``streamer`` feeds the same loop sample by sample."""
+
+    kind: ClassVar[Kind]
+    additive: ClassVar[bool] = False
+    default_params: ClassVar[EskfParams] = EskfParams()
+
+    def __init__(self, params: EskfParams | None = None) -> None:
+        self.params = params if params is not None else self.default_params
+
+    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+        """Estimate the whole flight in one compiled loop."""
+        self.check(flight)
+        has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
+        t_ev, kinds, vals = merge_events(flight, has)
+        counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
+        caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
+        st = make_state(self.kind, self.additive, self.params, flight.site, initial, has, caps)
+        L = layout_for(self.kind, self.params, additive=self.additive)
+        N, d = len(flight.imu.t), L.dim
+        q, bg = np.empty((N, 4)), np.empty((N, 3))
+        v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
+        w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
+        cov = np.empty((N, d, d))
+        run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
+        skipped = st.flags[K_SKIP : K_SKIP + 4]
+        return Estimate(
+            filter=self.label,
+            t=flight.imu.t.copy(),
+            q_nb=q,
+            gyro_bias_b=bg,
+            v_n=v if L.has("v") else None,
+            wind_n=w if L.has("wind") else None,
+            cov=cov,
+            state_labels=L.labels(),
+            innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
+            skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
+            params=self.params_text(),
+        )
+
+    def streamer(
+        self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
+    ) -> CompiledStreamer:
+        return CompiledStreamer(self.name, self.kind, self.additive, self.params, site, initial, has)

@@ -1,0 +1,188 @@
+"""The compiled filter's state records: what a running error-state or additive EKF carries
+between events, as flat arrays named by the index constants below, and the sensor registry
+(:data:`SENSORS`) the innovation logs are laid out from.
+
+:class:`KernelState` holds nine arrays: the configuration (ints) and parameters (floats)
+encoded once from the estimator's parameters, the nominal state with the samples it
+remembers, flags and counters, the covariance (zero-padded to NMAX x NMAX so the inner loops
+have a constant length), scratch space and the innovation logs. Helpers take the arrays they
+need, not the KernelState: numba reference-counts every array taken out of a tuple.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+_JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
+#: The predictions may fuse multiply-adds (FMA: different rounding, no other effect; they
+#: symmetrise P explicitly). The updates do not: their exact symmetry relies on plain
+#: products and sums.
+_JIT_FMA: dict[str, Any] = {**_JIT, "fastmath": {"contract"}}
+
+#: Width of the scratch rows: the largest covariance (ins-wind with accelerometer and
+#: magnetometer bias: 18; ekf10: 10) plus one.
+NMAX = 19
+
+KIND_MEKF, KIND_MEKF_AIR, KIND_INS = 0, 1, 2
+COMP_NONE, COMP_GNSS, COMP_AIRSPEED = 0, 1, 2
+MAG_3D, MAG_HEADING, MAG_OFF = 0, 1, 2
+AIR_AUTO, AIR_VECTOR, AIR_AIRSPEED, AIR_OFF = 0, 1, 2, 3
+
+#: The sensor registry: each aid source's innovation log as (key, the Flight stream that
+#: feeds it, rows). Each aid source (windahrs.aid) logs under its key; a new sensor adds a
+#: row here and nothing else in the core (the log layout below is sized from it).
+AID_LOGS: tuple[tuple[str, str, int], ...] = (
+    ("accel", "imu", 3),
+    ("mag", "mag", 3),  # 1 row when fused as heading
+    ("gnss", "gnss", 3),
+    ("air", "air", 3),
+    ("tas", "air", 1),
+    ("sideslip", "air", 1),
+)
+SENSORS = tuple(a[0] for a in AID_LOGS)
+SENSOR_STREAMS = tuple(a[1] for a in AID_LOGS)
+SENSOR_ROWS = tuple(a[2] for a in AID_LOGS)
+N_SENSORS = len(SENSORS)
+INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SENSORS.index("gnss")
+INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")
+
+# cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
+C_KIND = 0  # KIND_*
+C_ADD = 1  # 1: additive quaternion (ekf7/ekf10)
+C_COMP = 2  # accelerometer compensation, COMP_* (mekf-air: always airspeed)
+C_MAG = 3  # MAG_*
+C_AIR = 4  # AIR_*
+C_SYN = 5  # synthetic sideslip
+C_WAIT_MAG = 6  # initialise only after a magnetometer sample
+C_WAIT_GNSS = 7  # initialise only after a GNSS sample
+C_INI = 8  # an InitialState was given
+C_INI_BG = 9  # ... with a gyro bias
+C_INI_V = 10  # ... with a velocity
+C_INI_W = 11  # ... with a wind
+C_SITE_MAG = 12  # the site's field is known
+C_IV = 13  # error-state index of the velocity block (-1: none)
+C_IBG = 14  # ... gyro bias
+C_IW = 15  # ... wind (-1: none)
+C_IBA = 16  # ... accelerometer bias (-1: none)
+C_DIM = 17  # error-state dimension
+C_N = 18  # covariance dimension (additive: DIM + 1)
+C_IBM = 19  # ... magnetometer bias (-1: none)
+C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
+C_OFF = 21  # (N_SENSORS,) first row of each sensor's log
+C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
+N_CFG = C_CAP + N_SENSORS
+
+# prm: parameters (float64), fixed for a run; squared in Python as the reference does.
+R_SG2 = 0  # gyro noise density^2
+R_SB2 = 1  # gyro bias noise^2
+R_SA2 = 2  # accel noise^2
+R_SBA2 = 3  # accel bias noise^2
+R_WH2 = 4  # horizontal wind noise^2
+R_WV2 = 5  # vertical wind noise^2
+R_ACC_VAR = 6
+R_NORM_GATE = 7
+R_MAG_SIGMA = 8
+R_MAG_VAR = 9
+R_GNSS_VAR = 10
+R_TAS_VAR = 11
+R_VANE_VAR = 12
+R_BETA_VAR = 13
+R_GATE2_ACC = 14
+R_GATE2_MAG = 15
+R_GATE2_GNSS = 16
+R_GATE2_AIR = 17
+R_P0_ATT = 18  # initial variances
+R_P0_BG = 19
+R_P0_V = 20
+R_P0_W = 21
+R_P0_BA = 22
+R_GRAV = 23
+R_SITE_MAG = 24  # (3,)
+R_INI_Q = 27  # (4,)
+R_INI_BG = 31  # (3,)
+R_INI_V = 34  # (3,)
+R_INI_W = 37  # (3,)
+R_P0_BM = 40
+R_SBM2 = 41  # magnetometer bias noise^2
+R_ACC_LP = 42  # accel_lowpass, s (0: raw samples)
+R_MAG_LP = 43  # mag_lowpass, s (0: raw samples)
+R_SCALE2 = 44  # gyro_scale_noise^2
+R_MAG_NGATE = 45  # mag_norm_gate (0: off)
+R_MAG_DGATE = 46  # mag_dip_gate, rad (0: off)
+N_PRM = 47
+
+# x: nominal state and remembered samples (float64).
+X_Q = 0  # (4,)
+X_BG = 4
+X_V = 7
+X_W = 10
+X_BA = 13
+X_MAGN = 16  # nav-frame field reference
+X_FLAST = 19  # last specific force
+X_VGNSS = 22  # last GNSS velocity
+X_AGNSS = 25  # GNSS velocity difference
+X_VAIR = 28  # last air-relative velocity, body
+X_FMAG = 31  # first magnetometer sample (before initialisation)
+X_FV = 34  # first GNSS velocity (before initialisation)
+X_TIMU = 37
+X_TGNSS = 38
+X_BM = 40  # (3,) magnetometer bias
+X_FBAR = 43  # (3,) low-passed specific force, body
+X_MBAR = 46  # (3,) low-passed magnetic field, body
+X_TMBAR = 49  # time of the last magnetometer sample in it
+N_X = 50
+
+# flags (int64): which remembered values are set, log counters, skipped samples.
+S_INIT = 0
+S_FLAST = 1
+S_MAGN = 2
+S_VGNSS = 3
+S_AGNSS = 4
+S_VAIR = 5
+S_FMAG = 6
+S_FV = 7
+S_WPEND = 8  # wind to be initialised from the next air sample
+S_SEQ = 9  # sensors that have logged so far
+S_FBAR = 10  # the low-passed specific force is set
+S_MBAR = 11  # the low-passed magnetic field is set
+K_SKIP = 12  # (4,) NaN samples skipped: imu, mag, gnss, air
+L_CNT = 16  # (N_SENSORS,) log rows used per sensor
+L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
+N_FLAGS = L_FIRST + N_SENSORS
+
+# work: scratch rows of NMAX columns.
+W_H = 0  # (3,) measurement Jacobian rows, error-state columns
+W_HQ = 3  # (3,) the same in covariance columns (additive)
+W_U = 6  # (3,) H P
+W_K = 9  # (3,) K^T
+W_G = 12  # (3,) G^T = (K S / 2 - P H^T)^T
+W_M = 15  # (8,) rows of Phi P; rows 4..7 also Xi(q)
+W_X = 23  # (8,) 8x8: attitude/velocity block; rows 4..7 also a 4x4 factor
+W_T = 31  # 8 3x3 matrices, in columns 0..2 of rows W_T + 3 i
+W_R = 55  # (3,) measurement noise, columns 0..2
+W_S = 58  # (3,) innovation covariance
+W_SI = 61  # (3,) its inverse
+W_NU = 64  # innovation in columns 0..2
+W_DX = 65  # error-state correction
+N_WORK = 66
+
+
+class KernelState(NamedTuple):
+    """Everything a compiled filter carries between events (arrays, mutated in place);
+    the index constants of this module name their entries."""
+
+    cfg: I64  # (N_CFG,) C_*
+    prm: F64  # (N_PRM,) R_*
+    x: F64  # (N_X,) X_*
+    flags: I64  # (N_FLAGS,) S_*, L_*, K_*
+    P: F64  # (NMAX, NMAX) covariance in [:n, :n], zero padding
+    work: F64  # (N_WORK, NMAX) W_*
+    sup: I64  # (2, NMAX) columns where H (row 0) and Hq (row 1) may be non-zero
+    inn: F64  # (L, 5) innovation log rows: t, nu (3, NaN-padded), nis
+    acc: NDArray[np.bool_]  # (L,) accepted

@@ -1,0 +1,344 @@
+"""The process models of the compiled core: the error-state prediction (attitude, gyro bias,
+velocity, wind, accelerometer and magnetometer biases; SPEC 2.4, 2.5) and the additive
+quaternion prediction of [ekf7] and [ekf10] (SPEC 2.3), with the normalisation that
+projects the covariance.
+
+The transition matrix is the identity except a few 3x3 blocks in the attitude (and
+velocity) rows, so each prediction rewrites only those rows and columns of P (O(n) work
+instead of the O(n^3) of a dense ``Phi P Phi^T``); the 3x3 blocks live in local scalars.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from windahrs.core.layout import (
+    _JIT,
+    _JIT_FMA,
+    C_IBA,
+    C_IBG,
+    C_IBM,
+    C_IV,
+    C_IW,
+    C_N,
+    NMAX,
+    R_GRAV,
+    R_SA2,
+    R_SB2,
+    R_SBA2,
+    R_SBM2,
+    R_SCALE2,
+    R_SG2,
+    R_WH2,
+    R_WV2,
+    W_DX,
+    W_M,
+    W_T,
+    W_X,
+    X_BA,
+    X_BG,
+    X_Q,
+    X_V,
+)
+from windahrs.core.quat import (
+    _dcm9,
+    _qexp,
+    _qmul,
+    _qnormalize,
+    _sinc,
+    _xi_into,
+)
+
+
+@njit(**_JIT_FMA)
+def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
+    """error_state.predict, using Phi's block structure: only the attitude (and velocity)
+    rows and columns of P change before Q is added (layout: att 0..2, v 3..5). The 3x3
+    blocks of Phi live in local scalars."""
+    n, ib, iv, iw, iba = cfg[C_N], cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
+    M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
+    wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
+    e = _qexp(wx * dt, wy * dt, wz * dt)
+    q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    # attitude_transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
+    # W = [w]x; W^2 = w w^T - |w|^2 I entry by entry as W @ W evaluates it.
+    a = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if a * dt < 1e-6:  # series, as the reference
+        c11, c12 = -dt, 0.5 * dt**2
+        c21, c22 = 0.5 * dt**2, -(dt**3) / 6.0
+    else:
+        s, c = math.sin(a * dt), math.cos(a * dt)
+        c11, c12 = -s / a, (1 - c) / a**2
+        c21, c22 = (1 - c) / a**2, -(a * dt - s) / a**3
+    xy, xz, yz = wy * wx, wz * wx, wz * wy
+    s00, s11, s22 = -(wz * wz) - wy * wy, -(wz * wz) - wx * wx, -(wy * wy) - wx * wx
+    p00, p01, p02 = 1.0 + c12 * s00, c11 * -wz + c12 * xy, c11 * wy + c12 * xz
+    p10, p11, p12 = c11 * wz + c12 * xy, 1.0 + c12 * s11, c11 * -wx + c12 * yz
+    p20, p21, p22 = c11 * -wy + c12 * xz, c11 * wx + c12 * yz, 1.0 + c12 * s22
+    r00, r01, r02 = -dt + c22 * s00, c21 * -wz + c22 * xy, c21 * wy + c22 * xz
+    r10, r11, r12 = c21 * wz + c22 * xy, -dt + c22 * s11, c21 * -wx + c22 * yz
+    r20, r21, r22 = c21 * -wy + c22 * xz, c21 * wx + c22 * yz, -dt + c22 * s22
+    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], whole padded rows. One
+    # output row per loop keeps LLVM's runtime alias checks few enough to vectorise.
+    for j in range(NMAX):
+        M[0, j] = (
+            p00 * P[0, j]
+            + p01 * P[1, j]
+            + p02 * P[2, j]
+            + r00 * P[ib, j]
+            + r01 * P[ib + 1, j]
+            + (r02 * P[ib + 2, j])
+        )
+    for j in range(NMAX):
+        M[1, j] = (
+            p10 * P[0, j]
+            + p11 * P[1, j]
+            + p12 * P[2, j]
+            + r10 * P[ib, j]
+            + r11 * P[ib + 1, j]
+            + (r12 * P[ib + 2, j])
+        )
+    for j in range(NMAX):
+        M[2, j] = (
+            p20 * P[0, j]
+            + p21 * P[1, j]
+            + p22 * P[2, j]
+            + r20 * P[ib, j]
+            + r21 * P[ib + 1, j]
+            + (r22 * P[ib + 2, j])
+        )
+    na = 3
+    f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
+    d00 = d01 = d02 = d10 = d11 = d12 = d20 = d21 = d22 = 0.0
+    if iv >= 0:
+        na = 6
+        C = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        fx, fy, fz = fmx, fmy, fmz
+        if iba >= 0:
+            fx, fy, fz = fmx - x[X_BA], fmy - x[X_BA + 1], fmz - x[X_BA + 2]
+        x[X_V] += (C[0] * fx + C[1] * fy + C[2] * fz + 0.0) * dt
+        x[X_V + 1] += (C[3] * fx + C[4] * fy + C[5] * fz + 0.0) * dt
+        x[X_V + 2] += (C[6] * fx + C[7] * fy + C[8] * fz + prm[R_GRAV]) * dt
+        # Phi[v, att] = CF phi11, Phi[v, bg] = CF phi12 with CF = -C [f]x dt; Phi[v, ba] = -C dt
+        f00, f01, f02 = (
+            (-C[1] * fz + C[2] * fy) * dt,
+            (-C[2] * fx + C[0] * fz) * dt,
+            (-C[0] * fy + C[1] * fx) * dt,
+        )
+        f10, f11, f12 = (
+            (-C[4] * fz + C[5] * fy) * dt,
+            (-C[5] * fx + C[3] * fz) * dt,
+            (-C[3] * fy + C[4] * fx) * dt,
+        )
+        f20, f21, f22 = (
+            (-C[7] * fz + C[8] * fy) * dt,
+            (-C[8] * fx + C[6] * fz) * dt,
+            (-C[6] * fy + C[7] * fx) * dt,
+        )
+        d00, d01, d02, d10, d11, d12 = -C[0] * dt, -C[1] * dt, -C[2] * dt, -C[3] * dt, -C[4] * dt, -C[5] * dt
+        d20, d21, d22 = -C[6] * dt, -C[7] * dt, -C[8] * dt
+        # M[3:6] = velocity rows of Phi P = P[v] + CF M[0:3] (+ Cdt P[ba])
+        if iba >= 0:
+            for j in range(NMAX):
+                M[3, j] = (
+                    P[iv, j]
+                    + (f00 * M[0, j] + f01 * M[1, j] + f02 * M[2, j])
+                    + (d00 * P[iba, j] + d01 * P[iba + 1, j] + d02 * P[iba + 2, j])
+                )
+            for j in range(NMAX):
+                M[4, j] = (
+                    P[iv + 1, j]
+                    + (f10 * M[0, j] + f11 * M[1, j] + f12 * M[2, j])
+                    + (d10 * P[iba, j] + d11 * P[iba + 1, j] + d12 * P[iba + 2, j])
+                )
+            for j in range(NMAX):
+                M[5, j] = (
+                    P[iv + 2, j]
+                    + (f20 * M[0, j] + f21 * M[1, j] + f22 * M[2, j])
+                    + (d20 * P[iba, j] + d21 * P[iba + 1, j] + d22 * P[iba + 2, j])
+                )
+        else:
+            for j in range(NMAX):
+                m0, m1, m2 = M[0, j], M[1, j], M[2, j]
+                M[3, j] = P[iv, j] + (f00 * m0 + f01 * m1 + f02 * m2)
+                M[4, j] = P[iv + 1, j] + (f10 * m0 + f11 * m1 + f12 * m2)
+                M[5, j] = P[iv + 2, j] + (f20 * m0 + f21 * m1 + f22 * m2)
+    # X = Phi P Phi^T on the attitude/velocity rows and columns (0..na-1)
+    for r in range(na):
+        t0, t1, t2, g0, g1, g2 = M[r, 0], M[r, 1], M[r, 2], M[r, ib], M[r, ib + 1], M[r, ib + 2]
+        x0 = t0 * p00 + t1 * p01 + t2 * p02 + g0 * r00 + g1 * r01 + g2 * r02
+        x1 = t0 * p10 + t1 * p11 + t2 * p12 + g0 * r10 + g1 * r11 + g2 * r12
+        x2 = t0 * p20 + t1 * p21 + t2 * p22 + g0 * r20 + g1 * r21 + g2 * r22
+        X[r, 0], X[r, 1], X[r, 2] = x0, x1, x2
+        if iv >= 0:
+            X[r, 3] = M[r, 3] + (f00 * x0 + f01 * x1 + f02 * x2)
+            X[r, 4] = M[r, 4] + (f10 * x0 + f11 * x1 + f12 * x2)
+            X[r, 5] = M[r, 5] + (f20 * x0 + f21 * x1 + f22 * x2)
+            if iba >= 0:
+                g0, g1, g2 = M[r, iba], M[r, iba + 1], M[r, iba + 2]
+                X[r, 3] += d00 * g0 + d01 * g1 + d02 * g2
+                X[r, 4] += d10 * g0 + d11 * g1 + d12 * g2
+                X[r, 5] += d20 * g0 + d21 * g1 + d22 * g2
+    # write back, exactly symmetric; the rest of P is unchanged (Phi is the identity there)
+    for j in range(na, n):
+        m0, m1, m2 = M[0, j], M[1, j], M[2, j]
+        P[0, j], P[1, j], P[2, j] = m0, m1, m2
+        P[j, 0], P[j, 1], P[j, 2] = m0, m1, m2
+        if na == 6:
+            m0, m1, m2 = M[3, j], M[4, j], M[5, j]
+            P[3, j], P[4, j], P[5, j] = m0, m1, m2
+            P[j, 3], P[j, 4], P[j, 5] = m0, m1, m2
+    for r in range(na):
+        for c in range(r, na):
+            v = 0.5 * (X[r, c] + X[c, r])
+            P[r, c] = v
+            P[c, r] = v
+    # process noise
+    sg2, sb2 = prm[R_SG2], prm[R_SB2]
+    if prm[R_SCALE2] > 0:  # rate-proportional gyro noise
+        sg2 = sg2 + prm[R_SCALE2] * (wx * wx + wy * wy + wz * wz)
+    qaa = sg2 * dt + sb2 * dt**3 / 3.0
+    qab = -sb2 * dt**2 / 2.0
+    qbb = sb2 * dt
+    for k in range(3):
+        P[k, k] += qaa
+        P[k, ib + k] += qab
+        P[ib + k, k] += qab
+        P[ib + k, ib + k] += qbb
+        if iv >= 0:
+            P[iv + k, iv + k] += prm[R_SA2] * dt
+        if iba >= 0:
+            P[iba + k, iba + k] += prm[R_SBA2] * dt
+        if cfg[C_IBM] >= 0:
+            P[cfg[C_IBM] + k, cfg[C_IBM] + k] += prm[R_SBM2] * dt
+    if iw >= 0:
+        P[iw, iw] += prm[R_WH2] * dt
+        P[iw + 1, iw + 1] += prm[R_WH2] * dt
+        P[iw + 2, iw + 2] += prm[R_WV2] * dt
+
+
+@njit(**_JIT)
+def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
+    """Ekf7Streamer._normalise: q <- q/|q| (w >= 0), P <- J P J^T, symmetrised."""
+    M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
+    n = cfg[C_N]
+    nq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    u = work[W_DX]  # (free here: any correction was applied before)
+    u[0], u[1], u[2], u[3] = q0 / nq, q1 / nq, q2 / nq, q3 / nq
+    sign = -1.0 if u[0] < 0.0 else 1.0
+    # J = +-(I - u u^T)/|q| in X[4:8, 0:4]
+    for r in range(4):
+        for c in range(4):
+            eye = 1.0 if r == c else 0.0
+            X[4 + r, c] = sign * ((eye - u[r] * u[c]) / nq)
+    # M[0:4] = J P[0:4, :]
+    for r in range(4):
+        j0, j1, j2, j3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
+        for j in range(NMAX):
+            M[r, j] = j0 * P[0, j] + j1 * P[1, j] + j2 * P[2, j] + j3 * P[3, j]
+    for r in range(4):
+        for c in range(4):
+            X[r, c] = (
+                M[r, 0] * X[4 + c, 0]
+                + M[r, 1] * X[4 + c, 1]
+                + M[r, 2] * X[4 + c, 2]
+                + (M[r, 3] * X[4 + c, 3])
+            )
+    for r in range(4):
+        for j in range(4, n):
+            P[r, j] = M[r, j]
+            P[j, r] = M[r, j]
+        for c in range(r, 4):
+            v = 0.5 * (X[r, c] + X[c, r])
+            P[r, c] = v
+            P[c, r] = v
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = sign * u[0], sign * u[1], sign * u[2], sign * u[3]
+
+
+@njit(**_JIT_FMA)
+def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
+    """Ekf7Streamer._predict: F = [[Phi4, -(dt/2) Xi(q_k) J_r], [0, I]], Q of SPEC 2.3."""
+    M, X, Xi = work[W_M : W_M + 4], work[W_X : W_X + 8], work[W_M + 4 : W_M + 8]
+    Jr, K = work[W_T : W_T + 3, 0:3], work[W_T + 3 : W_T + 6, 0:3]
+    Fqb = work[W_T + 6 : W_T + 10, 0:3]  # 4x3 (borrows a row of the next matrix)
+    n = cfg[C_N]
+    ib = cfg[C_IBG] + 1
+    iw = cfg[C_IW] + 1 if cfg[C_IW] >= 0 else -1
+    dx, dy, dz = (wmx - x[X_BG]) * dt, (wmy - x[X_BG + 1]) * dt, (wmz - x[X_BG + 2]) * dt
+    a = math.sqrt(dx * dx + dy * dy + dz * dz)
+    s = 0.5 * _sinc(a / (2.0 * math.pi))
+    ch = math.cos(0.5 * a)
+    # Phi4 = cos(a/2) I + s Omega(d), in X[4:8, 0:4]
+    X[4, 0], X[4, 1], X[4, 2], X[4, 3] = ch, -s * dx, -s * dy, -s * dz
+    X[5, 0], X[5, 1], X[5, 2], X[5, 3] = s * dx, ch, s * dz, -s * dy
+    X[6, 0], X[6, 1], X[6, 2], X[6, 3] = s * dy, -s * dz, ch, s * dx
+    X[7, 0], X[7, 1], X[7, 2], X[7, 3] = s * dz, s * dy, -s * dx, ch
+    p0, p1, p2, p3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    qk = (
+        X[4, 0] * p0 + X[4, 1] * p1 + X[4, 2] * p2 + X[4, 3] * p3,
+        X[5, 0] * p0 + X[5, 1] * p1 + X[5, 2] * p2 + X[5, 3] * p3,
+        X[6, 0] * p0 + X[6, 1] * p1 + X[6, 2] * p2 + X[6, 3] * p3,
+        X[7, 0] * p0 + X[7, 1] * p1 + X[7, 2] * p2 + X[7, 3] * p3,
+    )
+    # right Jacobian of the increment (rotation.right_jacobian)
+    if a < 1e-5:
+        c1 = 0.5 - a**2 / 24.0
+        c2 = 1.0 / 6.0 - a**2 / 120.0
+    else:
+        c1 = (1.0 - math.cos(a)) / a**2
+        c2 = (a - math.sin(a)) / a**3
+    K[0, 0], K[0, 1], K[0, 2] = 0.0, -dz, dy
+    K[1, 0], K[1, 1], K[1, 2] = dz, 0.0, -dx
+    K[2, 0], K[2, 1], K[2, 2] = -dy, dx, 0.0
+    for r in range(3):
+        for c in range(3):
+            k2 = K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c]
+            Jr[r, c] = (1.0 if r == c else 0.0) - c1 * K[r, c] + c2 * k2
+    _xi_into(qk[0], qk[1], qk[2], qk[3], Xi)
+    h = -0.5 * dt
+    for r in range(4):
+        for c in range(3):
+            Fqb[r, c] = h * Xi[r, 0] * Jr[0, c] + h * Xi[r, 1] * Jr[1, c] + h * Xi[r, 2] * Jr[2, c]
+    # M = quaternion rows of F P
+    for r in range(4):
+        f0, f1, f2, f3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
+        g0, g1, g2 = Fqb[r, 0], Fqb[r, 1], Fqb[r, 2]
+        for j in range(NMAX):
+            M[r, j] = (
+                f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
+                + g0 * P[ib, j] + g1 * P[ib + 1, j] + g2 * P[ib + 2, j]
+            )  # fmt: skip
+    for r in range(4):
+        for c in range(4):
+            v = 0.0
+            for k in range(4):
+                v += M[r, k] * X[4 + c, k]
+            for k in range(3):
+                v += M[r, ib + k] * Fqb[c, k]
+            X[r, c] = v
+    for r in range(4):
+        for j in range(4, n):
+            P[r, j] = M[r, j]
+            P[j, r] = M[r, j]
+        for c in range(4):
+            P[r, c] = X[r, c]
+    # process noise (ekf7_process_noise at q_k; wind random walk)
+    sg2, sb2 = prm[R_SG2], prm[R_SB2]
+    cqq = sg2 * dt / 4.0 + sb2 * dt**3 / 12.0
+    cqb = -sb2 * dt**2 / 4.0
+    for r in range(4):
+        for c in range(4):
+            P[r, c] += cqq * (Xi[r, 0] * Xi[c, 0] + Xi[r, 1] * Xi[c, 1] + Xi[r, 2] * Xi[c, 2])
+        for k in range(3):
+            P[r, ib + k] += cqb * Xi[r, k]
+            P[ib + k, r] += cqb * Xi[r, k]
+    for k in range(3):
+        P[ib + k, ib + k] += sb2 * dt
+    if iw >= 0:
+        P[iw, iw] += prm[R_WH2] * dt
+        P[iw + 1, iw + 1] += prm[R_WH2] * dt
+        P[iw + 2, iw + 2] += prm[R_WV2] * dt
+    _normalise_add(cfg, x, P, work, qk[0], qk[1], qk[2], qk[3])
