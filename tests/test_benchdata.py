@@ -26,7 +26,6 @@ from windahrs.experiments.benchdata import (
     discover_trials,
     split_error,
 )
-from windahrs.filters.base import Estimator
 from windahrs.filters.registry import make_estimator, names
 from windahrs.flight import Flight, ImuStream, Reference
 from windahrs.io import read_flight
@@ -38,24 +37,6 @@ DEG = math.pi / 180.0
 BROAD_TRIALS = 7
 ALFA_SEQUENCE = "carbonZ_2018-07-18-15-53-31_1_engine_failure"
 
-
-def _fast(spec: str) -> Estimator:
-    """The registry's estimator, or its compiled twin (same name, parameters and output,
-    tested equal sample by sample in test_compiled.py) when the registry still points at
-    the readable reference: the reference [mekf] needs about a minute per BROAD trial."""
-    est = make_estimator(spec)
-    try:
-        from windahrs.filters import compiled
-    except ImportError:
-        return est
-    twins = {"Mekf": "MekfFast", "MekfAir": "MekfAirFast", "InsWind": "InsWindFast", "Ekf7": "Ekf7Fast"}
-    twin = getattr(compiled, twins.get(type(est).__name__, ""), None)
-    if twin is None or isinstance(est, twin):
-        return est
-    fast: Estimator = twin(est.params)  # type: ignore[attr-defined]
-    if ":" in spec:
-        fast.label = spec
-    return fast
 
 
 # -- the error decomposition, on synthetic attitudes -------------------------------------
@@ -271,14 +252,13 @@ def test_quat_average_is_sign_insensitive(rng: np.random.Generator) -> None:
 # -- real data ------------------------------------------------------------------------------
 
 
-def test_broad_trials_mekf_and_vqf(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_broad_trials_mekf_and_vqf() -> None:
     folder = require_data("broad")
     paths = discover_trials(folder)
     assert len(paths) == BROAD_TRIALS, f"expected the {BROAD_TRIALS} BROAD trials in {folder}"
     specs = ["mekf"]
     if "vqf" in names():
         specs.append("vqf")
-    monkeypatch.setattr(benchdata, "make_estimator", _fast)
     calls: list[tuple[int, int]] = []
     result = bench_data(paths, specs, progress=lambda done, total: calls.append((done, total)))
     assert calls[-1] == (len(paths) * len(specs),) * 2
@@ -300,7 +280,7 @@ def test_broad_trials_mekf_and_vqf(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_sample_ulg_mekf_tilt_against_ekf2() -> None:
     flight = read_flight(require_data("px4", "sample.ulg"))
     assert flight.reference is not None and flight.reference.kind == "autopilot"
-    tilt = score(_fast("mekf").run(flight), flight).rmse_tilt_deg
+    tilt = score(make_estimator("mekf").run(flight), flight).rmse_tilt_deg
     # Issue acceptance: at most 0.5 deg RMS. Measured 0.42 deg; a constant 0.39 deg
     # rotation between [mekf] and EKF2 (estimate_alignment) makes up most of it.
     assert tilt <= 0.5, f"[mekf] tilt RMS against EKF2: {tilt:.3f} deg"

@@ -10,18 +10,25 @@ which and by how much in the commit message.
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from windahrs.estimate import Estimate
 from windahrs.experiments.reproduce import Case, _estimator, flight_seed
+from windahrs.filters.base import InitialState
+from windahrs.filters.params import EskfParams
 from windahrs.filters.registry import make_estimator
 from windahrs.sim.atmosphere import WindConfig
 from windahrs.sim.fixedwing import FixedWingScenario
 from windahrs.sim.paper import PaperScenario
 from windahrs.sim.quadrotor import QuadrotorScenario
-from windahrs.sim.scenario import simulate
+from windahrs.flight import AirDataStream, Flight, GnssStream, ImuStream, MagStream
+from windahrs.sim.scenario import make_scenario, simulate
+from windahrs.sim.sensors import SensorSuite
 
 HERE = Path(__file__).resolve().parent
 #: Our estimators (the outside baselines are not ours to keep equal).
@@ -47,6 +54,132 @@ def flights():
     yield "quadrotor_8", None, simulate(QuadrotorScenario(duration=DURATION, wind=wind), np.random.default_rng(8))
 
 
+# --- the error-state and additive EKFs in detail: every output on short flights that
+# exercise every branch (vanes, pitot only, NaN in every stream, quadrotor; from the truth;
+# non-default parameters; no site field). These were the cases of the readable references.
+
+KINDS = ("mekf", "mekf-air", "ins-wind", "ekf7", "ekf10")
+NEEDS_AIR = ("mekf-air", "ekf10")
+CASE_DURATION = 2.5
+
+
+def _with_nans(f: Flight, rng: np.random.Generator) -> Flight:
+    """NaN samples in every stream: the first IMU, magnetometer and GNSS samples (the
+    initialisation must wait) and a few later ones; one air sample without vanes."""
+
+    def holes(n: int, first: bool) -> np.ndarray:
+        idx = rng.choice(np.arange(1, n), size=max(2, n // 40), replace=False)
+        return np.concatenate([[0], idx]) if first else idx
+
+    assert f.mag is not None and f.gnss is not None and f.air is not None and f.air.aoa is not None
+    w, fb = f.imu.w_b.copy(), f.imu.f_b.copy()
+    i = holes(len(w), True)
+    w[i[::2]] = np.nan
+    fb[i[1::2]] = np.nan
+    w[0] = np.nan
+    m = f.mag.mag_b.copy()
+    m[holes(len(m), True)] = np.nan
+    v = f.gnss.v_n.copy()
+    v[holes(len(v), True), 1] = np.nan
+    tas, aoa, beta = f.air.tas.copy(), f.air.aoa.copy(), f.air.sideslip.copy()
+    j = holes(len(tas), False)
+    tas[j[:-1]] = np.nan
+    aoa[j[-1]] = np.nan  # a sample without vanes: airspeed + sideslip instead of the vector
+    return dataclasses.replace(
+        f,
+        imu=ImuStream(t=f.imu.t, w_b=w, f_b=fb),
+        mag=MagStream(t=f.mag.t, mag_b=m),
+        gnss=GnssStream(t=f.gnss.t, v_n=v),
+        air=AirDataStream(t=f.air.t, tas=tas, aoa=aoa, sideslip=beta),
+    )
+
+
+def case_flight(name: str) -> Flight:
+    if name == "quadrotor":
+        return simulate(make_scenario("quadrotor", wind=5.0, duration=CASE_DURATION), np.random.default_rng(3))
+    if name == "nosite":
+        f = case_flight("nan")
+        return dataclasses.replace(f, site=dataclasses.replace(f.site, mag_n=None))
+    sensors = SensorSuite(vanes=None) if name == "pitot" else SensorSuite()
+    f = simulate(make_scenario("fixedwing", wind=8.0, duration=CASE_DURATION), np.random.default_rng(1), sensors)
+    return _with_nans(f, np.random.default_rng(2)) if name == "nan" else f
+
+
+VARIANTS = [
+    ("mekf", EskfParams(mag_mode="heading", accel_compensation="gnss")),
+    ("mekf", EskfParams(accel_compensation="airspeed", gate_mag=1.0, mag_mode="3d")),
+    ("ekf7", EskfParams(mag_mode="heading", accel_compensation="gnss", gate_accel=1.0)),
+    ("ins-wind", EskfParams(accel_bias_noise=0.0, mag_mode="heading")),
+    ("ins-wind", EskfParams(air_mode="airspeed", synthetic_sideslip=False, gate_air=1.0, mag_mode="off")),
+    ("mekf-air", EskfParams(accel_compensation="airspeed", air_mode="airspeed", gate_air=2.0)),
+    ("ekf10", EskfParams(accel_compensation="airspeed", mag_mode="off", gate_air=1.5)),
+    # magnetometer-bias states (the additive ekf7 carries none)
+    ("mekf", EskfParams(init_mag_bias=1e-6)),
+    ("mekf-air", EskfParams(accel_compensation="airspeed", init_mag_bias=2e-6, mag_bias_noise=1e-7)),
+    ("ekf7", EskfParams(init_mag_bias=1e-6)),
+    # low-passed vectors, rate-proportional gyro noise, heading about the vertical, tight
+    # magnetic disturbance checks (so that they reject)
+    (
+        "mekf",
+        EskfParams(
+            accel_lowpass=0.5,
+            accel_norm_gate=0.01,
+            accel_compensation="gnss",
+            gyro_scale_noise=1e-3,
+            mag_mode="heading",
+            heading_model="vertical",
+            mag_lowpass=1.0,
+            mag_norm_gate=0.01,
+        ),
+    ),
+    (
+        "ekf7",
+        EskfParams(accel_lowpass=1.0, mag_lowpass=2.0, mag_mode="heading", heading_model="vertical", mag_dip_gate=0.01),
+    ),
+    ("mekf-air", EskfParams(accel_compensation="airspeed", accel_lowpass=1.0, init_mag_bias=1e-6, mag_norm_gate=0.01)),
+    ("ins-wind", EskfParams(mag_lowpass=1.0, gyro_scale_noise=1e-3, mag_dip_gate=0.01)),
+]
+
+
+
+
+def detail_cases() -> list[tuple[str, str, str, EskfParams | None, bool]]:
+    """(key, kind, flight, params or None for the defaults, start from the truth)."""
+    out = [
+        (f"{k}|{f}", k, f, None, False)
+        for f in ("vanes", "pitot", "nan", "quadrotor")
+        for k in KINDS
+        if not (f == "quadrotor" and k in NEEDS_AIR)
+    ]
+    out += [(f"{k}|vanes|truth", k, "vanes", None, True) for k in KINDS]
+    out += [(f"{k}|nan|variant{i}", k, "nan", p, False) for i, (k, p) in enumerate(VARIANTS)]
+    out.append(("mekf|nosite", "mekf", "nosite", None, False))
+    return out
+
+
+def run_detail(kind: str, flight_name: str, params: EskfParams | None, truth: bool) -> Estimate:
+    f = case_flight(flight_name)
+    est = make_estimator(kind)
+    if params is not None:
+        est = type(est)(params)  # type: ignore[call-arg]
+    return est.run(f, initial=InitialState.from_truth(f) if truth else None)
+
+
+def summary(e: Estimate) -> dict[str, Any]:
+    """What a detail case keeps: states, covariance diagonal, innovations, skipped counts."""
+    out: dict[str, Any] = {"q_nb": e.q_nb, "skipped": np.array([e.skipped[s] for s in sorted(e.skipped)])}
+    for name in ("gyro_bias_b", "v_n", "wind_n"):
+        if getattr(e, name) is not None:
+            out[name] = getattr(e, name)
+    assert e.cov is not None
+    out["cov_diag"] = np.diagonal(e.cov, axis1=1, axis2=2)
+    out["sensors"] = np.array(list(e.innovations))
+    for s, inn in e.innovations.items():
+        out[f"inn_{s}_t"], out[f"inn_{s}_nu"] = inn.t, inn.nu
+        out[f"inn_{s}_nis"], out[f"inn_{s}_accepted"] = inn.nis, inn.accepted
+    return out
+
+
 def main() -> None:
     out: dict[str, np.ndarray] = {}
     for fname, w, fl in flights():
@@ -63,6 +196,12 @@ def main() -> None:
     git = ["git", "rev-parse", "--short", "HEAD"]
     rev = subprocess.run(git, capture_output=True, text=True, cwd=HERE).stdout.strip()
     np.savez_compressed(HERE / "attitudes.npz", commit=np.array(rev), **out)
+    detail: dict[str, Any] = {"commit": np.array(rev)}
+    for key, kind, fname, params, truth in detail_cases():
+        for name, a in summary(run_detail(kind, fname, params, truth)).items():
+            detail[f"{key}|{name}"] = a
+        print(key, flush=True)
+    np.savez_compressed(HERE / "detail.npz", **detail)
 
 
 if __name__ == "__main__":

@@ -26,8 +26,24 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from windahrs.estimate import Estimate
-from windahrs.filters.base import EVENT_IMU, EVENT_MAG, InitialState, merge_events
+from windahrs.aid.mag import (
+    _set_mag_reference,
+)
+from windahrs.core.kalman import (
+    _inverse_small,
+    _log,
+)
+from windahrs.core.kernel import (
+    _STREAMS,
+    CompiledStreamer,
+    Kind,
+    _grow,
+    _innovations,
+    _try_init,
+    layout_for,
+    make_state,
+    record,
+)
 from windahrs.core.layout import (
     _JIT,
     C_CAP,
@@ -38,6 +54,7 @@ from windahrs.core.layout import (
     L_CNT,
     MAG_3D,
     MAG_OFF,
+    N_SENSORS,
     R_ACC_VAR,
     R_GATE2_ACC,
     R_GATE2_MAG,
@@ -51,6 +68,8 @@ from windahrs.core.layout import (
     S_FMAG,
     S_INIT,
     S_MAGN,
+    SENSOR_STREAMS,
+    SENSORS,
     X_BG,
     X_FLAST,
     X_FMAG,
@@ -68,24 +87,8 @@ from windahrs.core.quat import (
     _quat_from_euler,
     _wrap_pi,
 )
-from windahrs.core.kalman import (
-    _inverse_small,
-    _log,
-)
-from windahrs.core.kernel import (
-    _STREAMS,
-    CompiledStreamer,
-    Kind,
-    layout_for,
-    _grow,
-    _innovations,
-    _try_init,
-    make_state,
-    record,
-)
-from windahrs.aid.mag import (
-    _set_mag_reference,
-)
+from windahrs.estimate import Estimate
+from windahrs.filters.base import EVENT_IMU, EVENT_MAG, InitialState, merge_events
 from windahrs.filters.params import EskfParams
 from windahrs.filters.usque import GRP_A, GRP_F, USQUE_LAMBDA, Usque
 from windahrs.flight import Flight, Site
@@ -473,7 +476,7 @@ class UsqueFastStreamer(CompiledStreamer):
 
     def _step(self, kind: int, t: float) -> None:
         st = self._st
-        if (st.flags[L_CNT : L_CNT + 6] >= st.cfg[C_CAP : C_CAP + 6]).any():
+        if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
             self._st = st = _grow(st)  # an event logs at most one row per sensor
         self._t[0] = t
         self._kind[0] = kind
@@ -497,8 +500,11 @@ class UsqueFast(Usque):
         self.check(flight)
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
         t_ev, kinds, vals = merge_events(flight, has)
-        counts = np.bincount(kinds, minlength=4)
-        caps = np.array([counts[EVENT_IMU], counts[EVENT_MAG], 0, 0, 0, 0], dtype=np.int64)
+        counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
+        fused = ("accel", "mag")  # [usque]'s aid sources
+        caps = np.array(
+            [counts[s] if k in fused else 0 for k, s in zip(SENSORS, SENSOR_STREAMS, strict=True)], dtype=np.int64
+        )
         kp = _kernel_params(self.params)
         st: KernelState = make_state(_KERNEL_KIND, False, kp, flight.site, _kernel_initial(initial), has, caps)
         L = layout_for(_KERNEL_KIND, kp)
