@@ -33,7 +33,7 @@ def fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, ext
     """Fuse a zero sideslip at t s (tas m/s scales the GNSS part of R; extra: the GNSS
     variance (m/s)^2 when it is an input)."""
     nu, R = work[W_NU], work[W_R : W_R + 3]
-    y0, y1, y2, ns = _air_rows(cfg, x, work, sup[0], use_v, 0.0, 0.0, 0.0, np.int64(0))
+    y0, y1, _, ns = _air_rows(cfg, x, work, sup[0], use_v, 0.0, 0.0, 0.0, np.int64(0))
     u = y0 if abs(y0) > 1e-3 else math.copysign(1e-3, y0)
     _, y1, _, ns = _air_rows(cfg, x, work, sup[0], use_v, -y1 / u**2, 1.0 / u, 0.0, np.int64(0))
     nu[0] = -(y1 / u)

@@ -6,7 +6,8 @@ with the wind estimated instead of given.
 
 It runs on the compiled core and aid sources of the error-state filters (initialisation,
 accelerometer gating, magnetometer reference, innovation logging) and differs only in its
-state parameterisation (:func:`windahrs.core.predict._predict_add`): the covariance is 7x7 on ``[q; b]``. Measurement Jacobians on ``q`` are
+state parameterisation (:func:`windahrs.core.predict._predict_add`): the covariance is 7x7
+on ``[q; b]``. Measurement Jacobians on ``q`` are
 ``2 H_dtheta Xi(q)^T``, which equals SPEC 3.1's additive Jacobian on the tangent space of
 the unit sphere (its component along ``q`` meets no covariance after projection; tested).
 The Estimate reports the tangent covariance ``T P T^T``, ``T = blkdiag(2 Xi^T, I)``.
