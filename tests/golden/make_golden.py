@@ -22,11 +22,11 @@ from windahrs.experiments.reproduce import Case, _estimator, flight_seed
 from windahrs.filters.base import InitialState
 from windahrs.filters.params import EskfParams
 from windahrs.filters.registry import make_estimator
+from windahrs.flight import AirDataStream, Flight, GnssStream, ImuStream, MagStream
 from windahrs.sim.atmosphere import WindConfig
 from windahrs.sim.fixedwing import FixedWingScenario
 from windahrs.sim.paper import PaperScenario
 from windahrs.sim.quadrotor import QuadrotorScenario
-from windahrs.flight import AirDataStream, Flight, GnssStream, ImuStream, MagStream
 from windahrs.sim.scenario import make_scenario, simulate
 from windahrs.sim.sensors import SensorSuite
 
