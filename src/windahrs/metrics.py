@@ -23,12 +23,14 @@ __all__ = [
     "AttitudeErrors",
     "Score",
     "attitude_errors",
+    "WindErrors",
     "chi2_band",
     "convergence_index",
     "nees_attitude",
     "reference_of",
     "rmse",
     "score",
+    "wind_errors",
 ]
 
 F64 = NDArray[np.float64]
@@ -172,3 +174,41 @@ def chi2_band(dim: int, runs: int, level: float = 0.95) -> tuple[float, float]:
     lo = chi2.ppf((1 - level) / 2, dim * runs) / runs
     hi = chi2.ppf(1 - (1 - level) / 2, dim * runs) / runs
     return float(lo), float(hi)
+
+
+#: Wind errors are scored from this time on, s: wind states start unknown (ins-wind: 5 m/s
+#: per axis) and converge over tens of seconds.
+WIND_FROM_S = 30.0
+
+
+@dataclass(frozen=True)
+class WindErrors:
+    """Horizontal wind errors from ``t_from`` s on: rmse_h m/s, the RMS of the horizontal
+    error vector; direction_deg, the angle from the mean true horizontal wind to the mean
+    estimated one (signed, clockwise seen from above); speed_bias m/s, the mean estimated
+    speed minus the mean true speed."""
+
+    rmse_h: float
+    direction_deg: float
+    speed_bias: float
+    t_from: float
+
+
+def wind_errors(est: Estimate, flight: Flight, *, t_from: float = WIND_FROM_S) -> WindErrors:
+    """Horizontal wind of ``est`` against the flight's true wind (simulation truth)."""
+    tr = flight.truth
+    if est.wind_n is None or tr is None or tr.wind_n is None:
+        raise ValueError("wind errors need an estimate with wind states and a flight with the true wind")
+    k = np.flatnonzero(est.t >= t_from)
+    if len(k) == 0:
+        raise ValueError(f"t_from: expected a time within the flight (ends at {est.t[-1]:.1f} s), found {t_from!r}")
+    i = np.clip(np.searchsorted(tr.t, est.t[k]), 0, len(tr.t) - 1)
+    w_est, w_true = est.wind_n[k, :2], tr.wind_n[i, :2]
+    me, mt = w_est.mean(axis=0), w_true.mean(axis=0)
+    d = np.arctan2(me[1], me[0]) - np.arctan2(mt[1], mt[0])
+    return WindErrors(
+        rmse_h=float(np.sqrt(np.mean(np.sum((w_est - w_true) ** 2, axis=1)))),
+        direction_deg=float(np.degrees((d + np.pi) % (2 * np.pi) - np.pi)),
+        speed_bias=float(np.linalg.norm(me) - np.linalg.norm(mt)),
+        t_from=t_from,
+    )

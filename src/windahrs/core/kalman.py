@@ -87,9 +87,13 @@ def _lowpass_gain(dt, tau):
 
 @njit(**_JIT)
 def _inverse_small(S, Si, m):
-    """Si = S^-1 for m = 1 or 3 (cofactors; S is a well-conditioned innovation covariance)."""
+    """Si = S^-1 for m = 1, 2 or 3 (cofactors; S is a well-conditioned innovation covariance)."""
     if m == 1:
         Si[0, 0] = 1.0 / S[0, 0]
+        return
+    if m == 2:
+        r = 1.0 / (S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0])
+        Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1] = S[1, 1] * r, -S[0, 1] * r, -S[1, 0] * r, S[0, 0] * r
         return
     a, b, c = S[0, 0], S[0, 1], S[0, 2]
     d, e, f = S[1, 0], S[1, 1], S[1, 2]
@@ -107,7 +111,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
 
     The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m], H = work[W_H:W_H+m]
     on the error-state columns sup[0, :nsup] (the attitude columns 0..2 always written);
-    m is 1 or 3. Returns whether the update was accepted.
+    m is 1, 2 or 3. Returns whether the update was accepted.
 
     Loops run over whole padded rows of P (constant length NMAX) with every row of the
     measurement in one pass, which lets the compiler vectorise them."""
@@ -151,6 +155,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 U[0, j] += h0 * p
                 U[1, j] += h1 * p
                 U[2, j] += h2 * p
+        elif m == 2:
+            h0, h1 = Hm[0, c], Hm[1, c]
+            for j in range(NMAX):
+                p = P[c, j]
+                U[0, j] += h0 * p
+                U[1, j] += h1 * p
         else:
             h0 = Hm[0, c]
             for j in range(NMAX):
@@ -202,6 +212,22 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 P[i, j] = ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
                     a2 * Gt[2, j] + b2 * Kt[2, j]
                 )
+    elif m == 2:
+        i00, i01, i10, i11 = Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1]
+        s00, s01, s10, s11 = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
+        n0, n1 = nu[0], nu[1]
+        for j in range(NMAX):
+            u0, u1 = U[0, j], U[1, j]
+            k0 = i00 * u0 + i01 * u1
+            k1 = i10 * u0 + i11 * u1
+            Kt[0, j], Kt[1, j] = k0, k1
+            dx[j] = k0 * n0 + k1 * n1
+            Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1) - u0
+            Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1) - u1
+        for i in range(n):
+            a0, b0, a1, b1 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i]
+            for j in range(NMAX):
+                P[i, j] = (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
     else:
         i00, s00, n0 = Si[0, 0], S[0, 0], nu[0]
         for j in range(NMAX):

@@ -25,6 +25,9 @@ from windahrs.aid.air_vector import (
 from windahrs.aid.air_velocity import (
     remember_air,
 )
+from windahrs.aid.drag import (
+    fuse_drag,
+)
 from windahrs.aid.gnss_vel import (
     fuse_gnss,
     remember_gnss,
@@ -53,6 +56,7 @@ from windahrs.core.layout import (
     C_CAP,
     C_COMP,
     C_DIM,
+    C_DRAG,
     C_HVERT,
     C_IBA,
     C_IBG,
@@ -95,8 +99,13 @@ from windahrs.core.layout import (
     R_ACC_LP,
     R_ACC_VAR,
     R_BETA_VAR,
+    R_DRAG_KX,
+    R_DRAG_KY,
+    R_DRAG_MU,
+    R_DRAG_VAR,
     R_GATE2_ACC,
     R_GATE2_AIR,
+    R_GATE2_DRAG,
     R_GATE2_GNSS,
     R_GATE2_MAG,
     R_GNSS_VAR,
@@ -117,6 +126,7 @@ from windahrs.core.layout import (
     R_P0_BM,
     R_P0_V,
     R_P0_W,
+    R_P0_WV,
     R_SA2,
     R_SB2,
     R_SBA2,
@@ -217,7 +227,7 @@ def _try_init(cfg, prm, x, flags, P, work):
         if iv >= 0:
             P[iv + off + a, iv + off + a] = prm[R_P0_V]
         if iw >= 0:
-            P[iw + off + a, iw + off + a] = prm[R_P0_W]
+            P[iw + off + a, iw + off + a] = prm[R_P0_W] if a < 2 else prm[R_P0_WV]
         if iba >= 0:
             P[iba + off + a, iba + off + a] = prm[R_P0_BA]
         if cfg[C_IBM] >= 0:
@@ -293,6 +303,8 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
     if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
+    elif cfg[C_DRAG] == 1:  # ... and may also read the drag in it
+        fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
 @njit(inline="always", **_JIT)
@@ -546,6 +558,7 @@ def make_state(
     cfg[C_HVERT] = int(p.heading_model == "vertical")
     cfg[C_AIR] = _AIR[p.air_mode]
     cfg[C_SYN] = int(p.synthetic_sideslip)
+    cfg[C_DRAG] = int(p.drag and kind == "ins-wind")
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
     cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
     cfg[C_INI] = int(ini is not None)
@@ -571,7 +584,7 @@ def make_state(
     prm[R_SA2] = p.accel_noise**2
     prm[R_SBA2] = p.accel_bias_noise**2
     prm[R_WH2] = p.wind_noise**2
-    prm[R_WV2] = p.wind_noise_vertical**2
+    prm[R_WV2] = p.wind_noise_vertical**2 if p.wind_vertical else 0.0
     prm[R_ACC_VAR] = p.accel_sigma**2
     prm[R_NORM_GATE] = p.accel_norm_gate
     prm[R_MAG_SIGMA] = p.mag_sigma
@@ -589,6 +602,7 @@ def make_state(
     prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
     prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
     prm[R_P0_W] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2
+    prm[R_P0_WV] = prm[R_P0_W] if p.wind_vertical else 0.0
     prm[R_P0_BA] = p.init_accel_bias**2
     prm[R_P0_BM] = p.init_mag_bias**2
     prm[R_SBM2] = p.mag_bias_noise**2
@@ -597,6 +611,11 @@ def make_state(
     prm[R_SCALE2] = p.gyro_scale_noise**2
     prm[R_MAG_NGATE] = p.mag_norm_gate
     prm[R_MAG_DGATE] = p.mag_dip_gate
+    prm[R_DRAG_MU] = p.drag_mcoef
+    prm[R_DRAG_KX] = 0.0 if p.drag_bcoef_x == 0 else p.air_density / (2.0 * p.drag_bcoef_x)
+    prm[R_DRAG_KY] = 0.0 if p.drag_bcoef_y == 0 else p.air_density / (2.0 * p.drag_bcoef_y)
+    prm[R_DRAG_VAR] = p.drag_sigma**2
+    prm[R_GATE2_DRAG] = p.gate_drag**2
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n

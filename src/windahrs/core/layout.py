@@ -44,6 +44,7 @@ AID_LOGS: tuple[tuple[str, str, int], ...] = (
     ("air", "air", 3),
     ("tas", "air", 1),
     ("sideslip", "air", 1),
+    ("drag", "imu", 2),
 )
 SENSORS = tuple(a[0] for a in AID_LOGS)
 SENSOR_STREAMS = tuple(a[1] for a in AID_LOGS)
@@ -51,6 +52,7 @@ SENSOR_ROWS = tuple(a[2] for a in AID_LOGS)
 N_SENSORS = len(SENSORS)
 INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SENSORS.index("gnss")
 INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")
+INN_DRAG = SENSORS.index("drag")
 
 # cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
 C_KIND = 0  # KIND_*
@@ -74,7 +76,8 @@ C_DIM = 17  # error-state dimension
 C_N = 18  # covariance dimension (additive: DIM + 1)
 C_IBM = 19  # ... magnetometer bias (-1: none)
 C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
-C_OFF = 21  # (N_SENSORS,) first row of each sensor's log
+C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
+C_OFF = 22  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
@@ -115,7 +118,13 @@ R_MAG_LP = 43  # mag_lowpass, s (0: raw samples)
 R_SCALE2 = 44  # gyro_scale_noise^2
 R_MAG_NGATE = 45  # mag_norm_gate (0: off)
 R_MAG_DGATE = 46  # mag_dip_gate, rad (0: off)
-N_PRM = 47
+R_DRAG_MU = 47  # drag_mcoef, 1/s
+R_DRAG_KX = 48  # air_density / (2 drag_bcoef_x), 1/m (0: no bluff-body term)
+R_DRAG_KY = 49
+R_DRAG_VAR = 50  # drag_sigma^2
+R_GATE2_DRAG = 51
+R_P0_WV = 52  # initial vertical-wind variance (0: held at zero)
+N_PRM = 53
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)

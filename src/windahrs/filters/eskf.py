@@ -30,7 +30,7 @@ import numpy as np
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.filters.params import EskfParams
 
-__all__ = ["MEKF_FIELD", "InsWind", "Mekf", "MekfAir"]
+__all__ = ["MEKF_FIELD", "InsDrag", "InsWind", "Mekf", "MekfAir"]
 
 
 #: [mekf]'s defaults for a 9-D AHRS in the field (handheld, robots, vehicles; BROAD-type
@@ -77,3 +77,15 @@ class InsWind(CompiledEstimator):
     requires = frozenset({"imu", "gnss"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
     default_params = EskfParams(init_mag_bias=1e-6)
+
+
+class InsDrag(InsWind):
+    """[ins-drag] [ins-wind] fusing the multirotor drag in the accelerometer (PX4 EKF2's
+    drag fusion, :mod:`windahrs.aid.drag`): a wind estimate and a tilt reference without a
+    pitot. Defaults: [ins-wind]'s with PX4's drag coefficients (EKF2_MCOEF 0.15 1/s,
+    EKF2_BCOEF_X/Y 100 kg/m^2, EKF2_DRAG_NOISE 2.5 (m/s^2)^2; tune them to the airframe)
+    and the vertical wind held at zero (EKF2's wind state is horizontal: the body-x/y drag
+    of a tilted multirotor cannot tell vertical from horizontal wind)."""
+
+    name = "ins-drag"
+    default_params = InsWind.default_params.replace(drag=True, wind_vertical=False)

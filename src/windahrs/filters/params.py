@@ -44,7 +44,9 @@ class EskfParams:
     rad/s^2/sqrt(Hz); accel_noise m/s^2/sqrt(Hz) (INS input); accel_bias_noise
     m/s^3/sqrt(Hz) (0: no accelerometer-bias states in [ins-wind]); wind_noise,
     wind_noise_vertical m/s^2/sqrt(Hz) (high enough to follow turbulence: an airframe
-    in gusts sees the wind change by about sigma * sqrt(2 V / L) per sqrt(s)).
+    in gusts sees the wind change by about sigma * sqrt(2 V / L) per sqrt(s)). wind_vertical:
+    estimate the vertical wind (False: hold it at zero, as PX4 EKF2's 2-D wind state; for
+    a wind observed only through the horizontal drag, where it is not observable).
 
     Accelerometer as a gravity measurement ([mekf], [mekf-air], [ekf7]): accel_sigma m/s^2
     per axis (noise plus unmodelled acceleration); fused only when ``| |f| - g | <
@@ -82,6 +84,15 @@ class EskfParams:
     tas_sigma m/s, vane_sigma rad, sideslip_sigma rad (synthetic zero sideslip;
     synthetic_sideslip switches it).
 
+    Multirotor drag ([ins-wind], [ins-drag]; PX4 EKF2's drag fusion): drag switches the
+    fusion of the accelerometer's body x and y as ``f_xy = -drag_mcoef u_xy - air_density
+    u_xy |u_xy| / (2 drag_bcoef_xy)`` with ``u = C_bn (v - W)`` the air-relative velocity:
+    drag_mcoef 1/s, the rotor momentum drag (EKF2_MCOEF, default 0.15); drag_bcoef_x,
+    drag_bcoef_y kg/m^2, the ballistic coefficients of the bluff body (EKF2_BCOEF_X/Y,
+    default 100; 0: no bluff-body term); drag_sigma m/s^2 per axis (EKF2_DRAG_NOISE is its
+    variance, default 2.5 (m/s^2)^2: rotor vibration); gate_drag; air_density kg/m^3
+    (ISA sea level).
+
     Gates: a measurement is rejected when a component's innovation exceeds ``gate`` of its
     standard deviation (PX4's test ratio), per sensor.
 
@@ -95,6 +106,7 @@ class EskfParams:
     accel_bias_noise: float = 1e-4
     wind_noise: float = 0.5
     wind_noise_vertical: float = 0.3
+    wind_vertical: bool = True
     accel_sigma: float = 0.5
     accel_norm_gate: float = 0.15
     accel_compensation: Literal["none", "gnss", "airspeed"] = "none"
@@ -124,6 +136,13 @@ class EskfParams:
     init_accel_bias: float = 0.05
     init_mag_bias: float = 0.0
     mag_bias_noise: float = 1e-8
+    drag: bool = False
+    drag_mcoef: float = 0.15
+    drag_bcoef_x: float = 100.0
+    drag_bcoef_y: float = 100.0
+    drag_sigma: float = math.sqrt(2.5)
+    gate_drag: float = 5.0
+    air_density: float = 1.225
 
     def __post_init__(self) -> None:
         choices = {
@@ -141,7 +160,7 @@ class EskfParams:
                 continue
             elif not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"{f.name}: expected a finite number >= 0, found {v!r}")
-        for name in ("gyro_noise", "mag_sigma", "gnss_sigma", "tas_sigma", "vane_sigma", "accel_sigma"):
+        for name in ("gyro_noise", "mag_sigma", "gnss_sigma", "tas_sigma", "vane_sigma", "accel_sigma", "drag_sigma"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
         for name in ("init_att", "init_bias", "init_v", "init_wind", "init_accel_bias"):
@@ -172,6 +191,10 @@ PX4_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
     "EKF2_TAS_GATE": ("gate_air", float),
     "EKF2_BETA_NOISE": ("sideslip_sigma", float),
     "EKF2_GRAV_NOISE": ("accel_sigma", lambda v: v * G0),  # in g
+    "EKF2_MCOEF": ("drag_mcoef", float),
+    "EKF2_BCOEF_X": ("drag_bcoef_x", float),
+    "EKF2_BCOEF_Y": ("drag_bcoef_y", float),
+    "EKF2_DRAG_NOISE": ("drag_sigma", math.sqrt),  # a variance, (m/s^2)^2
 }
 
 #: ArduPilot EKF3 parameter -> (our field, conversion). Gates are in percent of sigma.

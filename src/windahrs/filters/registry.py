@@ -27,6 +27,7 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "mekf": ("windahrs.filters.eskf", "Mekf", "error-state EKF, attitude + gyro bias"),
     "mekf-air": ("windahrs.filters.eskf", "MekfAir", "error-state EKF with wind states and air data"),
     "ins-wind": ("windahrs.filters.eskf", "InsWind", "error-state INS with wind states (recommended)"),
+    "ins-drag": ("windahrs.filters.eskf", "InsDrag", "ins-wind fusing multirotor drag: wind without a pitot"),
     "usque": (
         "windahrs.filters.compiled_usque",
         "UsqueFast",
