@@ -37,6 +37,9 @@ from windahrs.core.quat import (
     _dcm9,
 )
 
+#: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = ("air_mode", "tas_sigma", "vane_sigma", "gate_air")
+
 
 @njit(inline="always", **_JIT)
 def init_wind(x, flags, use_v, vanes):

@@ -42,6 +42,9 @@ from windahrs.core.layout import (
     X_BA,
 )
 
+#: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = ("drag", "drag_mcoef", "drag_bcoef_x", "drag_bcoef_y", "drag_sigma", "gate_drag", "air_density")
+
 
 @njit(inline="always", **_JIT)
 def fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):

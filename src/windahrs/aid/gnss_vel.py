@@ -31,6 +31,9 @@ from windahrs.core.layout import (
     X_VGNSS,
 )
 
+#: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = ("gnss_sigma", "gate_gnss")
+
 
 @njit(inline="always", **_JIT)
 def remember_gnss(x, flags, t, row):

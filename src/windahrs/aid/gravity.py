@@ -52,6 +52,9 @@ from windahrs.core.quat import (
     _dcm9,
 )
 
+#: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = ("accel_sigma", "accel_norm_gate", "accel_compensation", "accel_lowpass", "gate_accel")
+
 
 @njit(inline="always", **_JIT)
 def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):

@@ -61,6 +61,20 @@ from windahrs.core.quat import (
     _wrap_pi,
 )
 
+#: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = (
+    "mag_mode",
+    "mag_sigma",
+    "mag_3d_needs_site",
+    "heading_model",
+    "mag_lowpass",
+    "mag_norm_gate",
+    "mag_dip_gate",
+    "gate_mag",
+)
+#: ... and of its hard-iron states (error-state filters only).
+BIAS_PARAMS = ("init_mag_bias", "mag_bias_noise")
+
 
 @njit(**_JIT)
 def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):

@@ -27,6 +27,9 @@ from windahrs.core.layout import (
     W_R,
 )
 
+#: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = ("synthetic_sideslip", "sideslip_sigma")
+
 
 @njit(inline="always", **_JIT)
 def fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra):

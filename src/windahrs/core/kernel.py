@@ -553,7 +553,7 @@ def make_state(
     cfg = np.zeros(N_CFG, dtype=np.int64)
     cfg[C_KIND] = _KINDS[kind]
     cfg[C_ADD] = int(additive)
-    cfg[C_COMP] = COMP_AIRSPEED if kind == "mekf-air" else _COMP[p.accel_compensation]
+    cfg[C_COMP] = _COMP[p.accel_compensation]
     cfg[C_MAG] = _MAG[effective_mag_mode(p, site)]
     cfg[C_HVERT] = int(p.heading_model == "vertical")
     cfg[C_AIR] = _AIR[p.air_mode]
@@ -759,9 +759,17 @@ class CompiledEstimator(Estimator):
     kind: ClassVar[Kind]
     additive: ClassVar[bool] = False
     default_params: ClassVar[EskfParams] = EskfParams()
+    #: The parameter sets of its process model and aid sources (``PARAMS`` of windahrs.aid
+    #: and windahrs.core.predict): the fields a user may set on it.
+    parts: ClassVar[tuple[tuple[str, ...], ...]] = ()
 
     def __init__(self, params: EskfParams | None = None) -> None:
         self.params = params if params is not None else self.default_params
+
+    @classmethod
+    def param_names(cls) -> frozenset[str]:
+        """The fields of :class:`EskfParams` this estimator uses."""
+        return frozenset(name for part in cls.parts for name in part)
 
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
         """Estimate the whole flight in one compiled loop."""

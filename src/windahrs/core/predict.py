@@ -51,6 +51,14 @@ from windahrs.core.quat import (
     _xi_into,
 )
 
+#: The parameters of the process models (fields of :class:`windahrs.filters.params.EskfParams`):
+#: attitude and gyro bias (every filter), the rate-proportional gyro noise (error-state only),
+#: the INS (velocity from the accelerometer, its bias), the wind states.
+ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_bias")
+GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
+INS_PARAMS = ("accel_noise", "accel_bias_noise", "init_accel_bias", "init_v")
+WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")
+
 
 @njit(**_JIT_FMA)
 def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from windahrs.aid import air_vector, gravity, mag, sideslip, tas
+from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator, Kind
 from windahrs.filters.params import EskfParams
 
@@ -31,6 +33,8 @@ class Ekf7(CompiledEstimator):
     requires = frozenset({"imu"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
     additive = True
+    #: no rate-proportional gyro noise and no hard-iron states in the additive form
+    parts = (process.ATTITUDE_PARAMS, gravity.PARAMS, mag.PARAMS)
 
 
 class Ekf10(Ekf7):
@@ -40,3 +44,4 @@ class Ekf10(Ekf7):
     kind: ClassVar[Kind] = "mekf-air"
     requires = frozenset({"imu", "air", "gnss"})
     default_params = EskfParams(accel_compensation="airspeed")
+    parts = (*Ekf7.parts, process.WIND_PARAMS, air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, ("gnss_sigma",))

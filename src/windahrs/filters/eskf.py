@@ -27,8 +27,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from windahrs.aid import air_vector, drag, gnss_vel, gravity, mag, sideslip, tas
+from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.filters.params import EskfParams
+
+#: The air-data aid sources and the GNSS velocity as the input of [mekf-air]'s air data.
+_AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS)
 
 __all__ = ["MEKF_FIELD", "InsDrag", "InsWind", "Mekf", "MekfAir"]
 
@@ -57,6 +62,7 @@ class Mekf(CompiledEstimator):
     requires = frozenset({"imu"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
     default_params = MEKF_FIELD
+    parts = (process.ATTITUDE_PARAMS, process.GYRO_SCALE_PARAMS, gravity.PARAMS, mag.PARAMS, mag.BIAS_PARAMS)
 
 
 class MekfAir(CompiledEstimator):
@@ -67,6 +73,7 @@ class MekfAir(CompiledEstimator):
     requires = frozenset({"imu", "air", "gnss"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
     default_params = EskfParams(accel_compensation="airspeed")
+    parts = (*Mekf.parts, process.WIND_PARAMS, *_AIR, ("gnss_sigma",))
 
 
 class InsWind(CompiledEstimator):
@@ -77,6 +84,17 @@ class InsWind(CompiledEstimator):
     requires = frozenset({"imu", "gnss"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
     default_params = EskfParams(init_mag_bias=1e-6)
+    parts = (
+        process.ATTITUDE_PARAMS,
+        process.GYRO_SCALE_PARAMS,
+        process.INS_PARAMS,
+        process.WIND_PARAMS,
+        gnss_vel.PARAMS,
+        mag.PARAMS,
+        mag.BIAS_PARAMS,
+        *_AIR,
+        drag.PARAMS,
+    )
 
 
 class InsDrag(InsWind):

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -214,10 +215,24 @@ ARDUPILOT_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
 }
 
 
-def from_mapping(base: EskfParams, data: Mapping[str, Any], where: str = "params") -> EskfParams:
-    """Apply a ``{table: {key: value}}`` mapping (the TOML layout) to ``base``."""
-    fields = {f.name for f in dataclasses.fields(EskfParams)}
+def from_mapping(
+    base: EskfParams,
+    data: Mapping[str, Any],
+    where: str = "params",
+    *,
+    allowed: frozenset[str] | None = None,
+    filter_name: str = "",
+) -> EskfParams:
+    """Apply a ``{table: {key: value}}`` mapping (the TOML layout) to ``base``.
+
+    ``allowed``: the fields the estimator uses (None: all). Our names outside it are
+    refused, naming the filter; PX4 and ArduPilot names that map outside it are skipped
+    with a warning (a PX4 or ArduPilot parameter file sets far more than one estimator
+    uses)."""
+    every = {f.name for f in dataclasses.fields(EskfParams)}
+    fields = every if allowed is None else set(allowed)
     changes: dict[str, Any] = {}
+    skipped: list[str] = []
     for table, entries in data.items():
         if table not in ("windahrs", "px4", "ardupilot"):
             raise ValueError(f"{where}: expected tables [windahrs], [px4] or [ardupilot], found [{table}]")
@@ -226,9 +241,8 @@ def from_mapping(base: EskfParams, data: Mapping[str, Any], where: str = "params
         for key, value in entries.items():
             if table == "windahrs":
                 if key not in fields:
-                    raise ValueError(
-                        f"{where}: unknown parameter {key!r}; known: {', '.join(sorted(fields))}"
-                    )
+                    what = f"filter {filter_name!r} does not use" if key in every else "unknown"
+                    raise ValueError(f"{where}: {what} parameter {key!r}; known: {', '.join(sorted(fields))}")
                 changes[key] = value
             else:
                 mapping = PX4_MAP if table == "px4" else ARDUPILOT_MAP
@@ -237,17 +251,31 @@ def from_mapping(base: EskfParams, data: Mapping[str, Any], where: str = "params
                         f"{where}: [{table}] {key!r} has no windahrs equivalent; mapped: {', '.join(mapping)}"
                     )
                 name, conv = mapping[key]
-                if not isinstance(value, int | float):
+                if not isinstance(value, int | float) or isinstance(value, bool):
                     raise ValueError(f"{where}: [{table}] {key}: expected a number, found {value!r}")
+                if name not in fields:
+                    skipped.append(f"{key} ({name})")
+                    continue
                 changes[name] = conv(float(value))
+    if skipped:
+        warnings.warn(
+            f"{where}: {filter_name or 'the filter'} does not use {', '.join(skipped)}; skipped", stacklevel=3
+        )
     try:
         return base.replace(**changes)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
 
 
-def load_params(path: str | Path, base: EskfParams | None = None) -> EskfParams:
-    """Read parameters from a TOML file (layout in the module docstring)."""
+def load_params(
+    path: str | Path,
+    base: EskfParams | None = None,
+    *,
+    allowed: frozenset[str] | None = None,
+    filter_name: str = "",
+) -> EskfParams:
+    """Read parameters from a TOML file (layout in the module docstring); ``allowed`` and
+    ``filter_name`` as in :func:`from_mapping`."""
     p = Path(path)
     try:
         data = tomllib.loads(p.read_text())
@@ -255,7 +283,7 @@ def load_params(path: str | Path, base: EskfParams | None = None) -> EskfParams:
         raise ValueError(f"{p}: no such parameter file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
-    return from_mapping(base or EskfParams(), data, where=str(p))
+    return from_mapping(base or EskfParams(), data, where=str(p), allowed=allowed, filter_name=filter_name)
 
 
 #: Below this IMU rate (Hz) the default process noise is too small (see imu_rate_warning).

@@ -88,10 +88,14 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
     params = getattr(est, "params", None)
     if params is None or not dataclasses.is_dataclass(params):
         raise ValueError(f"filter {name!r} takes no parameters, found {sorted(overrides)}")
-    known = {f.name for f in dataclasses.fields(params)}
+    every = {f.name for f in dataclasses.fields(params)}
+    known = set(getattr(est, "param_names", lambda: every)())
     for key in overrides:
         if key not in known:
-            raise ValueError(f"filter {name!r}: unknown parameter {key!r}; known: {', '.join(sorted(known))}")
+            what = "does not use" if key in every else "has no"
+            raise ValueError(
+                f"filter {name!r} {what} parameter {key!r}; its parameters: {', '.join(sorted(known))}"
+            )
     est_new = type(est)(dataclasses.replace(params, **overrides))  # type: ignore[call-arg, type-var]
     est_new.label = spec
     return est_new
@@ -115,5 +119,6 @@ def _build(name: str, params_file: str | Path | None) -> Estimator:
         from windahrs.filters.params import load_params
 
         base = getattr(cls, "default_params", None)
-        return cls(load_params(params_file, base))
+        allowed = cls.param_names() if hasattr(cls, "param_names") else None
+        return cls(load_params(params_file, base, allowed=allowed, filter_name=name))
     return cls(load(params_file))
