@@ -88,7 +88,7 @@ DEFAULT_EXPERIMENT_FILTERS = (
 def _cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
-    from windahrs.experiments.wind import run_wind_experiment
+    from windahrs.experiments.montecarlo import run_wind_experiment
 
     specs = [s.strip() for s in args.filters.split(",") if s.strip()]
     if args.runs < 1:
