@@ -464,9 +464,18 @@ class Flight:
         if frame == "FLU":
             g, a = g @ P_FLU_FRD.T, a @ P_FLU_FRD.T
             m = None if m is None else m @ P_FLU_FRD.T
+        try:
+            imu = ImuStream(t=t_s, w_b=g, f_b=a)
+            mag_stream = None if m is None else MagStream(t=t_s, mag_b=m)
+        except FlightError as exc:  # a unit slip: say which argument and which keyword fixes it
+            name = _RAW_NAMES.get(exc.field, exc.field)
+            found = exc.found
+            for hint, switch in _UNIT_HINTS.items():
+                found = found.replace(hint, switch)
+            raise FlightError(name, exc.expected, found) from None
         return cls(
-            imu=ImuStream(t=t_s, w_b=g, f_b=a),
-            mag=None if m is None else MagStream(t=t_s, mag_b=m),
+            imu=imu,
+            mag=mag_stream,
             reference=ref,
             site=site if site is not None else Site(),
             meta={"source": "arrays", **(meta or {})},
@@ -511,6 +520,15 @@ class Flight:
         for k, v in sorted(self.meta.items()):
             lines.append(f"meta       {k} = {v}")
         return "\n".join(lines)
+
+
+_RAW_NAMES = {"imu.w_b": "gyro", "imu.f_b": "accel", "mag.mag_b": "mag"}
+_UNIT_HINTS = {
+    "deg/s? multiply by pi/180": "deg/s? pass gyro_units='deg/s'",
+    "in g? multiply by 9.80665": "in g? pass accel_units='g'",
+    "in microtesla? multiply by 1e-6": "in microtesla? pass mag_units='uT'",
+    "in gauss? multiply by 1e-4": "in gauss? pass mag_units='gauss'",
+}
 
 
 def _raw_rows(name: str, value: ArrayLike | None, n: int | None = None) -> F64:
