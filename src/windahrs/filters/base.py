@@ -235,8 +235,14 @@ class Streamer(ABC):
         """A deep copy of this streamer's whole state (filter state, covariance, logged
         innovations, skip counts, clock), independent of it: feeding either leaves the
         other unchanged. :meth:`restore` it to go back; restore-then-continue equals the
-        uninterrupted run bit for bit."""
-        return copy.deepcopy(self)
+        uninterrupted run bit for bit. Raises TypeError when the streamer holds a library
+        object that cannot be copied (imufusion's)."""
+        try:
+            return copy.deepcopy(self)
+        except TypeError as exc:
+            raise TypeError(
+                f"snapshot: the {self.filter_name} streamer holds state that cannot be copied ({exc})"
+            ) from None
 
     def restore(self, snapshot: Streamer) -> None:
         """Return to the state of ``snapshot`` (from :meth:`snapshot` of a streamer of the
