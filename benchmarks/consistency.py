@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     for w in winds:
         case = Case(w, args.filter, "estimated", "", bound)
         t0 = time.perf_counter()
-        res = run_reproduction(BLOCK, duration=args.duration, cases=[case], nees_runs=args.runs)
+        res = run_reproduction(BLOCK, duration=args.duration, cases=[case], nees_runs=args.runs, bound_fn=None)
         nees = res.nees[case_key(case)]
         total = nees_summary(nees)
         lo, hi = total["band"]

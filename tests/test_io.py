@@ -40,7 +40,7 @@ from windahrs.io import (
     read_flight,
     read_ulog,
 )
-from windahrs.io.errors import clean_series
+from windahrs.io.edge import clean_series
 from windahrs.rotation import (
     euler_from_quat,
     quat_angle,

@@ -76,8 +76,8 @@ def test_nees_check_extends_the_reproduction_runs_with_the_same_seed_sequence() 
     from windahrs.experiments.reproduce import Case, case_key, run_reproduction
 
     case = Case(5.0, "ins-wind", "estimated", "", "ins")
-    short = run_reproduction(2, duration=1.0, cases=[case], nees_runs=4)
-    longer = run_reproduction(4, duration=1.0, cases=[case])
+    short = run_reproduction(2, duration=1.0, cases=[case], nees_runs=4, bound_fn=None)
+    longer = run_reproduction(4, duration=1.0, cases=[case], bound_fn=None)
     key = case_key(case)
     np.testing.assert_array_equal(short.nees[key], longer.nees[key])
     row = short.cases[0]
@@ -125,6 +125,21 @@ def test_progress_total_counts_every_progress_call() -> None:
 
     cases = [Case(5.0, "ins-wind", "estimated", "", "ins"), Case(5.0, "madgwick", "none")]
     calls: list[tuple[str, int, int]] = []
-    run_reproduction(1, duration=1.0, cases=cases, nees_runs=3, progress=lambda *a: calls.append(a))
+    run_reproduction(1, duration=1.0, cases=cases, nees_runs=3, progress=lambda *a: calls.append(a), bound_fn=None)
     assert len(calls) == progress_total(cases, 1, 3) == 4
     assert [c[0] for c in calls[-2:]] == ["5 m/s | ins-wind (NEES check)"] * 2 and calls[-1][1:] == (3, 3)
+
+
+def test_python_caller_gets_the_pcrb_ratios_by_default() -> None:
+    """run_reproduction bounds the physically tuned cases with the PCRB of ``windahrs
+    reproduce`` unless told not to (``bound_fn=None``); other cases have no ratio."""
+    from windahrs.experiments.reproduce import Case, run_reproduction
+
+    cases = [Case(5.0, "mekf", "none", "", "gravity"), Case(5.0, "paper", "oracle", "fig4")]
+    res = run_reproduction(1, duration=1.0, cases=cases)
+    ratio = res.cases[0]["pcrb_ratio"]
+    assert ratio is not None and len(ratio) == 3 and all(np.isfinite(ratio)) and min(ratio) > 0.1
+    assert res.cases[1]["pcrb_ratio"] is None
+    assert "5 m/s | gravity" in res.bounds
+    none = run_reproduction(1, duration=1.0, cases=cases[:1], bound_fn=None)
+    assert none.cases[0]["pcrb_ratio"] is None and none.bounds == {}

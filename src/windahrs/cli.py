@@ -17,9 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 if TYPE_CHECKING:
-    from numpy.typing import NDArray
 
-    from windahrs.estimate import Estimate
     from windahrs.flight import Flight
     from windahrs.metrics import Score
 
@@ -88,7 +86,7 @@ DEFAULT_EXPERIMENT_FILTERS = (
 def _cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
-    from windahrs.experiments.wind import run_wind_experiment
+    from windahrs.experiments.montecarlo import run_wind_experiment
 
     specs = [s.strip() for s in args.filters.split(",") if s.strip()]
     if args.runs < 1:
@@ -155,7 +153,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             bar.update(1)
 
         res = run_reproduction(
-            runs, duration=args.duration, cases=cases, progress=step, bound_fn=_bound_fn(), nees_runs=nees_runs
+            runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs
         )
     files = write_reproduction(res, args.out)
     extra = f", NEES check of {checked} cases on {nees_runs} runs" if nees_runs > runs else ""
@@ -168,12 +166,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         print(f"[{'holds' if c['holds'] else 'does not hold'}] {c['claim']}: {c['numbers']}")
     print(f"open {args.out / 'report.html'} in a browser for the tables and figures")
     return 0
-
-
-def _bound_fn() -> Callable[[Sequence[Flight], str], NDArray[np.float64] | None]:
-    from windahrs.pcrb import reproduction_bound
-
-    return reproduction_bound
 
 
 def _cmd_bench_data(args: argparse.Namespace) -> int:
@@ -265,150 +257,76 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bar(total: int, desc: str) -> tqdm:
+    """A filter-by-filter bar, shown on a terminal only (tqdm's disable=None)."""
+    return tqdm(total=total, desc=desc, disable=None, file=sys.stderr)
+
+
+def _specs(text: str) -> list[str]:
+    specs = [s.strip() for s in text.split(",") if s.strip()]
+    if not specs:
+        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
+    return specs
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     import json
 
+    from windahrs.experiments.compare import AlignmentError, compare
     from windahrs.filters.registry import make_estimator
-    from windahrs.metrics import score
 
-    names = [n.strip() for n in args.filters.split(",") if n.strip()]
-    if not names:
-        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
-    estimators = [make_estimator(n) for n in names]  # fail on a bad name before any work
+    estimators = [make_estimator(n) for n in _specs(args.filters)]  # fail on a bad name before any work
     flight = _read(args.file)
-    results = []
-    for name, est in tqdm(list(zip(names, estimators, strict=True)), desc="compare", disable=None, file=sys.stderr):
-        results.append((name, est.run(flight)))
-    extra: dict[str, object] = {}
-    if args.align:
-        # The alignment is a result: on stdout with the table, on stderr beside JSON.
-        flight, extra = _align_or_fail(flight, results[0], to_stdout=not args.json)
-    rows = [score(est, flight) for _, est in results]
-    if args.json:
-        print(json.dumps([{**r.as_dict(), **extra} for r in rows], indent=1))
-        return 0
-    print(f"RMSE in deg against {rows[0].reference}{' (aligned)' if extra else ''}; from sample 50 | second half")
-    axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
-    width = max(14, *(len(r.filter) + 1 for r in rows))
-    print(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}")
-    for r in rows:
-        a, b = r.rmse_from50_deg, r.rmse_steady_deg
-        print(
-            f"{r.filter:<{width}}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
-            f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}"
-        )
+    with _bar(len(estimators), "compare") as bar:
+        try:
+            res = compare(flight, estimators, align=args.align, progress=lambda done, _: bar.update(done - bar.n))
+        except AlignmentError as exc:
+            raise UsageError(f"--align: {exc.reason}") from None
+    al = res.alignment
+    if al.skipped:
+        _note(f"--align: {al.skipped}")
+    if al.text is not None and args.json:  # the alignment is a result: on stderr beside JSON
+        print(al.text, file=sys.stderr)
+    if al.warning:
+        _note(f"warning: {al.warning}")
+    print(json.dumps(res.as_json(), indent=1) if args.json else str(res))
     return 0
-
-
-def _align_or_fail(
-    flight: Flight, fitted_on: tuple[str, Estimate], *, to_stdout: bool
-) -> tuple[Flight, dict[str, object]]:
-    """compare --align: the flight with its reference aligned to the first filter's
-    estimate, and the alignment as JSON fields; prints the alignment."""
-    from windahrs.experiments.align import apply_alignment, estimate_alignment
-    from windahrs.report.log_report import alignment_warning, describe_alignment
-
-    spec, est = fitted_on
-    if flight.reference is None:
-        _note(f"--align: {_nothing_to_align(flight)}")
-        return flight, {}
-    try:
-        al = estimate_alignment(est, flight)
-    except ValueError as exc:
-        raise UsageError(f"--align: {exc}") from None
-    print(describe_alignment(al, spec), file=sys.stdout if to_stdout else sys.stderr)
-    warning = alignment_warning(al)
-    if warning:
-        _note(f"warning: {warning}")
-    fields: dict[str, object] = {
-        "aligned_on": spec,
-        "mount_deg": al.mount_angle_deg,
-        "mount_q": [float(v) for v in al.q_mount],
-        "time_offset_s": al.time_offset_s,
-    }
-    return apply_alignment(flight, al), fields
-
-
-def _nothing_to_align(flight: Flight) -> str:
-    if flight.truth is not None:
-        return "simulation truth is in the estimators' frame and on their clock by construction; nothing to align"
-    return "the flight has no reference attitude; nothing to align"
 
 
 def _note(text: str) -> None:
     print(f"windahrs: {text}", file=sys.stderr)
 
 
-DEFAULT_REPORT_FILTERS = "mekf,ins-wind,vqf"
-
-
 def _cmd_report(args: argparse.Namespace) -> int:
-    from windahrs.experiments.align import estimate_alignment
-    from windahrs.filters.base import MissingSensorError
-    from windahrs.filters.registry import REGISTRY, make_estimator
-    from windahrs.filters.registry import names as installed
+    from windahrs.experiments.compare import run_for_report, select_estimators
     from windahrs.report.html import write_html
-    from windahrs.report.log_report import alignment_warning, build_log_report, describe_alignment
+    from windahrs.report.log_report import build_log_report
 
     explicit = args.filters is not None
-    specs = [s.strip() for s in (args.filters if explicit else DEFAULT_REPORT_FILTERS).split(",") if s.strip()]
-    if not specs:
-        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
+    specs = _specs(args.filters) if explicit else None
     if args.out.is_dir():
         raise UsageError(f"--out: expected a file name, found the directory {args.out}")
-    available = set(installed())
-    estimators = {}
-    failures: dict[str, str] = {}
-    notes: list[str] = []
-    for spec in specs:
-        name = spec.split(":")[0]
-        if name in REGISTRY and name not in available:  # not installed: reported; an unknown name fails below
-            why = "needs a package that is not installed (pip install 'windahrs[baselines]')"
-            if explicit:
-                failures[spec] = why
-            else:
-                notes.append(f"Default filter {spec} left out: it {why}.")
-            continue
-        estimators[spec] = make_estimator(spec)  # fail on a bad name or field before any work
+    selection = select_estimators(specs)  # fail on a bad name or field before any work
     flight = _read(args.file)
-    if not explicit:
-        for spec, est in list(estimators.items()):
-            try:
-                est.check(flight)
-            except MissingSensorError as exc:
-                del estimators[spec]
-                notes.append(f"Default filter {spec} left out: {exc}.")
-    results = []
-    for spec, est in tqdm(estimators.items(), desc="report", disable=None, file=sys.stderr):
-        try:
-            results.append((spec, est.run(flight)))
-        except ValueError as exc:  # a missing sensor, a failed initialisation: report it, go on
-            failures[spec] = str(exc)
-            _note(f"filter {spec} not run: {exc}")
-    if not results:
-        why = "; ".join(f"{k}: {v}" for k, v in failures.items()) or "; ".join(notes) or "none given"
-        raise UsageError(f"--filters: no filter could run on {args.file}: {why}")
-    alignment = None
-    aligned_on = None
-    if args.align:
-        if flight.reference is None:
-            notes.append(f"--align: {_nothing_to_align(flight)}.")
-            _note(f"--align: {_nothing_to_align(flight)}")
-        else:
-            aligned_on, est0 = results[0]
-            try:
-                alignment = estimate_alignment(est0, flight)
-                print(describe_alignment(alignment, aligned_on))
-                warning = alignment_warning(alignment)
-                if warning:
-                    _note(f"warning: {warning}")
-            except ValueError as exc:
-                notes.append(f"--align: no alignment ({exc}); scores are against the reference as logged.")
-                _note(f"--align: no alignment: {exc}")
-                aligned_on = None
+    with _bar(len(selection.estimators), "report") as bar:
+        run = run_for_report(
+            flight, selection, align=args.align, progress=lambda done, _: bar.update(done - bar.n),
+            on_failure=lambda spec, why: _note(f"filter {spec} not run: {why}"),
+        )
+    if not run.results:
+        raise UsageError(f"--filters: no filter could run on {args.file}: {run.why_none_ran()}")
+    al = run.alignment
+    if al.skipped:
+        _note(f"--align: {al.skipped}")
+    elif al.failed:
+        _note(f"--align: no alignment: {al.failed}")
+    if al.text is not None:
+        print(al.text)
+    if al.warning:
+        _note(f"warning: {al.warning}")
     page = build_log_report(
-        flight, results, alignment=alignment, aligned_on=aligned_on, failures=failures, notes=notes,
-        title=f"windahrs report: {args.file.name}",
+        flight, run.results, alignment=al.alignment, aligned_on=al.aligned_on, failures=run.failures,
+        notes=run.notes, title=f"windahrs report: {args.file.name}",
     )
     write_html(args.out, page)
     print(f"wrote {args.out}")
@@ -425,6 +343,8 @@ ALIGN_HELP = (
 
 
 def _parser() -> argparse.ArgumentParser:
+    from windahrs.experiments.compare import DEFAULT_REPORT_FILTERS
+
     p = argparse.ArgumentParser(
         prog="windahrs",
         description="UAV attitude estimation in wind: simulate flights, inspect flight files.",
@@ -525,8 +445,8 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file or a log")
     rp.add_argument(
         "--filters", default=None, metavar="A,B,...",
-        help=f"estimator specs (default: {DEFAULT_REPORT_FILTERS}, leaving out those the flight lacks a sensor "
-        "for or that are not installed)",
+        help=f"estimator specs (default: {','.join(DEFAULT_REPORT_FILTERS)}, leaving out those the flight lacks a "
+        "sensor for or that are not installed)",
     )
     rp.add_argument("--align", action="store_true", help=ALIGN_HELP)
     rp.add_argument("--out", type=Path, required=True, metavar="REPORT.html", help="the HTML file to write")

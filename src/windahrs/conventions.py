@@ -29,11 +29,15 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "ACCEL_UNITS",
     "DEG",
     "G0",
     "GRAVITY_N",
+    "GYRO_UNITS",
     "MAG_DALIAN_N",
+    "MAG_UNITS",
     "P_ENU_NED",
+    "P_FLU_FRD",
     "UP_N",
 ]
 
@@ -52,6 +56,15 @@ UP_N = np.array([0.0, 0.0, -1.0])
 #: The fixed matrix converting ENU to NED and RFU to FRD (and back: it is its own
 #: inverse). A proper rotation, 180 deg about (1, 1, 0)/sqrt(2). SPEC 1.5.
 P_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+#: Body FLU (x forward, y left, z up; ROS REP-103, vqf's examples) to FRD and back: a
+#: proper rotation, 180 deg about x.
+P_FLU_FRD = np.diag([1.0, -1.0, -1.0])
+
+#: Units the edge converts from, to SI (rad/s, m/s^2, tesla): factor per unit name.
+GYRO_UNITS: dict[str, float] = {"rad/s": 1.0, "deg/s": DEG}
+ACCEL_UNITS: dict[str, float] = {"m/s^2": 1.0, "g": G0}
+MAG_UNITS: dict[str, float] = {"T": 1.0, "uT": 1e-6, "nT": 1e-9, "gauss": 1e-4}
 
 #: Earth's magnetic field at Dalian (38.9 N, 121.6 E), IGRF-13 for 2018, NED, tesla.
 #: |B| = 53.1 uT, declination -8.0 deg, inclination +57.0 deg (SPEC 1.6). The site of

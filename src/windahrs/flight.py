@@ -25,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from windahrs.conventions import G0
+from windahrs.conventions import ACCEL_UNITS, G0, GYRO_UNITS, MAG_UNITS, P_FLU_FRD
 
 __all__ = [
     "AirDataStream",
@@ -83,7 +83,7 @@ def _check_time(name: str, t: ArrayLike) -> F64:
     if (d <= 0).any():
         i = int(np.argmax(d <= 0))
         raise FlightError(
-            name, "strictly increasing time", f"t[{i}] = {a[i]!r} then t[{i + 1}] = {a[i + 1]!r}"
+            name, "strictly increasing time", f"t[{i}] = {float(a[i])!r} then t[{i + 1}] = {float(a[i + 1])!r}"
         )
     return a
 
@@ -390,6 +390,97 @@ class Flight:
             if not isinstance(k, str) or not isinstance(v, str | int | float | bool):
                 raise FlightError(f"meta[{k!r}]", "str, int, float or bool", type(v).__name__)
 
+    @classmethod
+    def from_arrays(
+        cls,
+        t: ArrayLike | None = None,
+        gyro: ArrayLike | None = None,
+        accel: ArrayLike | None = None,
+        mag: ArrayLike | None = None,
+        *,
+        rate: float | None = None,
+        gyro_units: Literal["rad/s", "deg/s"] = "rad/s",
+        accel_units: Literal["m/s^2", "g"] = "m/s^2",
+        mag_units: Literal["T", "uT", "nT", "gauss"] = "T",
+        frame: Literal["FRD", "FLU"] = "FRD",
+        reference: ArrayLike | None = None,
+        reference_kind: ReferenceKind = "mocap",
+        site: Site | None = None,
+        meta: dict[str, Any] | None = None,
+    ) -> Flight:
+        """A Flight from raw IMU arrays, as they come from a logger or ``vqf``'s
+        ``VQF(Ts).updateBatch(gyr, acc, mag)``.
+
+        t: (N,) s, strictly increasing; or give ``rate`` (Hz) instead for samples
+        ``k / rate``. gyro: (N, 3) body rate; accel: (N, 3) specific force (a resting
+        sensor reads +g upward); mag: (N, 3) magnetic field on the same time grid, or
+        None. Rows with NaN are missing samples. Units (keyword-only): ``gyro_units``
+        "rad/s" | "deg/s", ``accel_units`` "m/s^2" | "g" (9.80665 m/s^2), ``mag_units``
+        "T" | "uT" | "nT" | "gauss". frame: body axes of the arrays, "FRD" (forward,
+        right, down; windahrs) or "FLU" (forward, left, up; ROS, most vqf examples),
+        converted with :data:`~windahrs.conventions.P_FLU_FRD`. reference: (N, 4) a
+        reference attitude [w, x, y, z] on the same grid (body to NED for "FRD", FLU body
+        to ENU for "FLU", as ROS logs it), labelled ``reference_kind``. site: gravity and
+        Earth's field (default: standard gravity, field unknown).
+
+        Raises :class:`FlightError` (a ValueError) naming the argument and what was found:
+        wrong shapes or lengths, only NaN, time not increasing, an unknown unit or frame.
+        """
+        if (t is None) == (rate is None):
+            found = "both" if t is not None else "neither"
+            raise FlightError("t, rate", "time stamps t (s) or a sample rate rate (Hz), one of them", found)
+        g = _raw_rows("gyro", gyro)
+        n = len(g)
+        a = _raw_rows("accel", accel, n)
+        m = _raw_rows("mag", mag, n) if mag is not None else None
+        if rate is not None:
+            r = float(rate)
+            if not (np.isfinite(r) and r > 0):
+                raise FlightError("rate", "a sample rate > 0 Hz", repr(rate))
+            t_s = np.arange(n, dtype=np.float64) / r
+        else:
+            t_s = _as_array("t", t, 1, None)  # type: ignore[arg-type]
+            if len(t_s) != n:
+                raise FlightError("t", f"{n} time stamps (one per gyro row)", f"{len(t_s)}")
+            t_s = _check_time("t", t_s)
+        g = g * _unit("gyro_units", gyro_units, GYRO_UNITS)
+        a = a * _unit("accel_units", accel_units, ACCEL_UNITS)
+        if m is not None:
+            m = m * _unit("mag_units", mag_units, MAG_UNITS)
+        if frame not in ("FRD", "FLU"):
+            raise FlightError("frame", "'FRD' or 'FLU'", repr(frame))
+        ref = None
+        if reference is not None:
+            q = _as_array("reference", reference, 2, 4)
+            if len(q) != n:
+                raise FlightError("reference", f"{n} rows (one per gyro row)", f"{len(q)} rows")
+            if frame == "FLU":
+                from windahrs.rotation import quat_enu_flu_to_ned_frd
+
+                ok = np.isfinite(q).all(axis=1)
+                q = q.copy()
+                q[ok] = quat_enu_flu_to_ned_frd(q[ok])
+            ref = Reference(t=t_s, q_nb=q, kind=reference_kind)
+        if frame == "FLU":
+            g, a = g @ P_FLU_FRD.T, a @ P_FLU_FRD.T
+            m = None if m is None else m @ P_FLU_FRD.T
+        try:
+            imu = ImuStream(t=t_s, w_b=g, f_b=a)
+            mag_stream = None if m is None else MagStream(t=t_s, mag_b=m)
+        except FlightError as exc:  # a unit slip: say which argument and which keyword fixes it
+            name = _RAW_NAMES.get(exc.field, exc.field)
+            found = exc.found
+            for hint, switch in _UNIT_HINTS.items():
+                found = found.replace(hint, switch)
+            raise FlightError(name, exc.expected, found) from None
+        return cls(
+            imu=imu,
+            mag=mag_stream,
+            reference=ref,
+            site=site if site is not None else Site(),
+            meta={"source": "arrays", **(meta or {})},
+        )
+
     @property
     def duration(self) -> float:
         """Span of the IMU stream, s."""
@@ -429,6 +520,35 @@ class Flight:
         for k, v in sorted(self.meta.items()):
             lines.append(f"meta       {k} = {v}")
         return "\n".join(lines)
+
+
+_RAW_NAMES = {"imu.w_b": "gyro", "imu.f_b": "accel", "mag.mag_b": "mag"}
+_UNIT_HINTS = {
+    "deg/s? multiply by pi/180": "deg/s? pass gyro_units='deg/s'",
+    "in g? multiply by 9.80665": "in g? pass accel_units='g'",
+    "in microtesla? multiply by 1e-6": "in microtesla? pass mag_units='uT'",
+    "in gauss? multiply by 1e-4": "in gauss? pass mag_units='gauss'",
+}
+
+
+def _raw_rows(name: str, value: ArrayLike | None, n: int | None = None) -> F64:
+    """(N, 3) float rows of a raw sensor array, at least one of them finite."""
+    if value is None:
+        raise FlightError(name, "an (N, 3) array", "none")
+    a = _as_array(name, value, 2, 3)
+    if n is not None and len(a) != n:
+        raise FlightError(name, f"{n} rows (one per gyro row)", f"{len(a)} rows")
+    if len(a) == 0:
+        raise FlightError(name, "at least one sample", "an empty array")
+    if not np.isfinite(a).all(axis=1).any():
+        raise FlightError(name, "at least one finite sample", f"only NaN in {len(a)} rows")
+    return a
+
+
+def _unit(name: str, unit: str, table: dict[str, float]) -> float:
+    if unit not in table:
+        raise FlightError(name, f"one of {', '.join(map(repr, table))}", repr(unit))
+    return table[unit]
 
 
 def _rate_text(t: F64) -> str:

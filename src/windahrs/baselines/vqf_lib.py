@@ -12,6 +12,7 @@ fixed-rate: time-stamp jitter is ignored and gaps are integrated as one period.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
@@ -144,6 +145,23 @@ class _VqfStreamer(LibraryStreamer):
             if self._initial.gyro_bias_b is not None:
                 lib.setBiasEstimate(np.ascontiguousarray(self._bias_placeholder))
         return lib
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> _VqfStreamer:
+        # The C++ VQF object cannot be copied; a new one with the same sampling time and
+        # parameters takes over its complete state (Streamer.snapshot / restore).
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        for key, value in self.__dict__.items():
+            if key != "_vqf":
+                new.__dict__[key] = copy.deepcopy(value, memo)
+        lib = self.__dict__.get("_vqf")
+        if lib is not None:
+            assert self._period is not None  # set when the VQF object was made
+            vqf = import_library("vqf")
+            clone = vqf.VQF(float(self._period), **self._params.vqf_kwargs())
+            clone.state = copy.deepcopy(lib.state)
+            new.__dict__["_vqf"] = clone
+        return new
 
     def _start(self, w_b: F64, f_b: F64, mag_ut: F64 | None) -> None:
         assert self._period is not None

@@ -39,11 +39,22 @@ from numpy.typing import NDArray
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight, Reference
 from windahrs.metrics import reference_of
-from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
+from windahrs.rotation import euler_from_quat, quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
 
-__all__ = ["Alignment", "apply_alignment", "estimate_alignment", "quat_average"]
+__all__ = [
+    "ALIGN_RESIDUAL_DEG",
+    "Alignment",
+    "alignment_warning",
+    "apply_alignment",
+    "describe_alignment",
+    "estimate_alignment",
+    "quat_average",
+]
 
 F64 = NDArray[np.float64]
+
+#: Above this residual (deg) an alignment is reported as unreliable.
+ALIGN_RESIDUAL_DEG = 5.0
 
 
 @dataclass(frozen=True)
@@ -277,3 +288,31 @@ def apply_alignment(flight: Flight, alignment: Alignment) -> Flight:
         "reference.mount_deg": alignment.mount_angle_deg,
     }
     return flight.replace(reference=new_ref, meta=meta)
+
+
+def describe_alignment(alignment: Alignment, aligned_on: str | None = None) -> str:
+    """One line: the mount rotation (angle and ZYX Euler angles), the time offset, the
+    rate agreement and the residual; ``aligned_on`` names the estimate it was fitted on."""
+    rpy = np.degrees(euler_from_quat(np.asarray(alignment.q_mount, dtype=np.float64)))
+    tau_ms = alignment.time_offset_s * 1e3
+    late = "late" if tau_ms >= 0 else "early"
+    on = f" to {aligned_on}" if aligned_on else ""
+    return (
+        f"reference aligned{on}: mount {alignment.mount_angle_deg:.3f} deg (roll {rpy[0]:+.3f}, pitch "
+        f"{rpy[1]:+.3f}, yaw {rpy[2]:+.3f} deg), time offset {tau_ms:+.1f} ms (reference stamps {late}), "
+        f"rate agreement {alignment.correlation:.3f}, residual {alignment.residual_deg:.3f} deg "
+        f"over {alignment.samples} samples"
+    )
+
+
+def alignment_warning(alignment: Alignment) -> str | None:
+    """Why an alignment should not be trusted, or None: what remains after it is more than
+    ALIGN_RESIDUAL_DEG, so the estimate it was fitted on differs from the reference by more
+    than a constant rotation and the fit absorbed part of that estimator's error."""
+    if alignment.residual_deg > ALIGN_RESIDUAL_DEG or not math.isfinite(alignment.residual_deg):
+        return (
+            f"the residual after alignment ({alignment.residual_deg:.3g} deg) exceeds {ALIGN_RESIDUAL_DEG:g} deg: "
+            "the estimate it was fitted on differs from the reference by more than a constant rotation, so the "
+            "mount and offset are unreliable; judge the scores against the reference as logged"
+        )
+    return None

@@ -21,6 +21,7 @@ from windahrs.estimate import Estimate
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
 from windahrs.metrics import attitude_errors, chi2_band, convergence_index, nees_attitude
+from windahrs.pcrb import reproduction_bound
 from windahrs.rotation import quat_conj, quat_log, quat_mul
 from windahrs.sim.paper import PaperScenario
 from windahrs.sim.scenario import simulate
@@ -149,13 +150,15 @@ def run_reproduction(
     duration: float = 20.0,
     cases: Sequence[Case] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
-    bound_fn: Callable[[Sequence[Flight], str], F64 | None] | None = None,
+    bound_fn: Callable[[Sequence[Flight], str], F64 | None] | None = reproduction_bound,
     nees_runs: int | None = None,
 ) -> ReproductionResult:
     """Run every case on ``runs`` flights per wind speed.
 
     ``bound_fn(flights, model)`` returns the PCRB attitude std (N, 3) in deg (body axes)
-    averaged over the flights, for ``model`` "gravity" or "ins"; None skips the ratios.
+    averaged over the flights, for ``model`` "gravity" or "ins" (default
+    :func:`windahrs.pcrb.reproduction_bound`, the bound ``windahrs reproduce`` reports);
+    ``bound_fn=None`` skips the bound and leaves every ``pcrb_ratio`` None.
     ``nees_runs`` (default ``runs``): when larger, the physically tuned filters also run on
     flights ``runs..nees_runs-1`` of the same seed sequence, simulated one at a time, and
     their rows get a ``nees_check`` (:func:`nees_check` over all ``nees_runs``, in blocks of

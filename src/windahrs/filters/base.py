@@ -15,7 +15,9 @@ next IMU sample.
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -229,6 +231,30 @@ class Streamer(ABC):
     @abstractmethod
     def state(self) -> StateView: ...
 
+    def snapshot(self) -> Streamer:
+        """A deep copy of this streamer's whole state (filter state, covariance, logged
+        innovations, skip counts, clock), independent of it: feeding either leaves the
+        other unchanged. :meth:`restore` it to go back; restore-then-continue equals the
+        uninterrupted run bit for bit. Raises TypeError when the streamer holds a library
+        object that cannot be copied (imufusion's)."""
+        try:
+            return copy.deepcopy(self)
+        except TypeError as exc:
+            raise TypeError(
+                f"snapshot: the {self.filter_name} streamer holds state that cannot be copied ({exc})"
+            ) from None
+
+    def restore(self, snapshot: Streamer) -> None:
+        """Return to the state of ``snapshot`` (from :meth:`snapshot` of a streamer of the
+        same type); the snapshot is copied, so it can be restored again."""
+        if type(snapshot) is not type(self):
+            raise ValueError(
+                f"snapshot: expected a snapshot of a {type(self).__name__}, found {type(snapshot).__name__}"
+            )
+        clone = copy.deepcopy(snapshot)  # through the type's own __deepcopy__, when it has one
+        self.__dict__.clear()
+        self.__dict__.update(clone.__dict__)
+
 
 def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.int64], F64]:
     """All samples of the streams in ``use`` in processing order.
@@ -293,6 +319,25 @@ class Estimator(ABC):
     ) -> Streamer:
         """A fresh streaming instance. ``has``: the streams that will be fed (lets the filter
         wait for a magnetometer sample before initialising heading)."""
+
+    def stream(
+        self, site: Site | None = None, *, initial: InitialState | None = None, has: Iterable[str] | None = None
+    ) -> Streamer:
+        """A fresh streamer to feed sample by sample (``imu``, ``mag``, ``gnss``, ``air``).
+
+        site: gravity and magnetic field (default :class:`~windahrs.flight.Site`: standard
+        gravity, field unknown). initial: a known initial state, or None. has: the streams
+        you will feed, from "imu", "mag", "gnss", "air" (default: every stream the filter
+        uses, as :meth:`run` on a flight that has them all); the filter waits for a first
+        magnetometer (and, for the INS, GNSS) sample before initialising when they are
+        announced, so leave out what you will not feed.
+        """
+        known = ("imu", "mag", "gnss", "air")
+        streams = frozenset(self.uses if has is None else ({has} if isinstance(has, str) else set(has)))
+        unknown = sorted(streams - set(known))
+        if unknown:
+            raise ValueError(f"has: expected stream names from {known}, found {unknown}")
+        return self.streamer(site if site is not None else Site(), initial=initial, has=streams & self.uses)
 
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
         """Estimate the whole flight (replays it through :meth:`streamer`)."""

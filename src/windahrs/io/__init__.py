@@ -33,7 +33,7 @@ from windahrs.flight import Flight
 from windahrs.io.broad import broad_movement_mask, read_broad
 from windahrs.io.csv import ALFA_IMU_FILE, CSV_MANIFEST, read_alfa, read_csv_dir
 from windahrs.io.dataflash import read_dataflash
-from windahrs.io.errors import LogFormatError
+from windahrs.io.edge import LogFormatError
 from windahrs.io.ulog import read_ulog
 
 __all__ = [

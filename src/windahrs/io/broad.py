@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.flight import Flight, ImuStream, MagStream, Reference, Site
-from windahrs.io.errors import (
+from windahrs.io.edge import (
     LogFormatError,
     finite_rows,
     flight_errors_name,

@@ -35,7 +35,7 @@ from windahrs.flight import (
     Site,
     WindStream,
 )
-from windahrs.io.errors import (
+from windahrs.io.edge import (
     LogFormatError,
     clean_series,
     finite_rows,

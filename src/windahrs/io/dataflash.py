@@ -48,7 +48,7 @@ from windahrs.flight import (
     Reference,
     WindStream,
 )
-from windahrs.io.errors import (
+from windahrs.io.edge import (
     LogFormatError,
     captured_output,
     clean_series,

@@ -45,7 +45,7 @@ from windahrs.flight import (
     ReferenceKind,
     WindStream,
 )
-from windahrs.io.errors import (
+from windahrs.io.edge import (
     LogFormatError,
     captured_output,
     clean_series,

@@ -29,7 +29,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
-from windahrs.experiments.align import Alignment, apply_alignment
+from windahrs.experiments.align import (  # the alignment's text lives beside it; re-exported
+    ALIGN_RESIDUAL_DEG,
+    Alignment,
+    alignment_warning,
+    apply_alignment,
+    describe_alignment,
+)
 from windahrs.flight import Flight
 from windahrs.metrics import Score, attitude_errors, chi2_band, reference_of, score
 from windahrs.report.figures import timeseries_png
@@ -50,8 +56,6 @@ __all__ = [
 
 F64 = NDArray[np.float64]
 
-#: Above this residual (deg) an alignment is reported as unreliable.
-ALIGN_RESIDUAL_DEG = 5.0
 #: A step longer than this many median steps counts as a gap.
 GAP_FACTOR = 3.0
 #: A channel is flagged as saturated when its largest |value| occurs in at least this many
@@ -212,34 +216,6 @@ def reference_text(flight: Flight) -> str:
         return ""
     text = _REFERENCE_TEXT.get(kind, kind)
     return text + (" (heading-free: a constant heading offset is removed before scoring)" if free else "")
-
-
-def describe_alignment(alignment: Alignment, aligned_on: str | None = None) -> str:
-    """One line: the mount rotation (angle and ZYX Euler angles), the time offset, the
-    rate agreement and the residual; ``aligned_on`` names the estimate it was fitted on."""
-    rpy = np.degrees(euler_from_quat(np.asarray(alignment.q_mount, dtype=np.float64)))
-    tau_ms = alignment.time_offset_s * 1e3
-    late = "late" if tau_ms >= 0 else "early"
-    on = f" to {aligned_on}" if aligned_on else ""
-    return (
-        f"reference aligned{on}: mount {alignment.mount_angle_deg:.3f} deg (roll {rpy[0]:+.3f}, pitch "
-        f"{rpy[1]:+.3f}, yaw {rpy[2]:+.3f} deg), time offset {tau_ms:+.1f} ms (reference stamps {late}), "
-        f"rate agreement {alignment.correlation:.3f}, residual {alignment.residual_deg:.3f} deg "
-        f"over {alignment.samples} samples"
-    )
-
-
-def alignment_warning(alignment: Alignment) -> str | None:
-    """Why an alignment should not be trusted, or None: what remains after it is more than
-    ALIGN_RESIDUAL_DEG, so the estimate it was fitted on differs from the reference by more
-    than a constant rotation and the fit absorbed part of that estimator's error."""
-    if alignment.residual_deg > ALIGN_RESIDUAL_DEG or not math.isfinite(alignment.residual_deg):
-        return (
-            f"the residual after alignment ({alignment.residual_deg:.3g} deg) exceeds {ALIGN_RESIDUAL_DEG:g} deg: "
-            "the estimate it was fitted on differs from the reference by more than a constant rotation, so the "
-            "mount and offset are unreliable; judge the scores against the reference as logged"
-        )
-    return None
 
 
 def _states(est: Estimate) -> str:

@@ -1,4 +1,5 @@
-"""The readers' error, and the shared rules for what is an error and what is dropped.
+"""Edge policy of the readers: what is an error, what is repaired and counted, and the
+readers' error :class:`LogFormatError`.
 
 Every reader in :mod:`windahrs.io` raises :class:`LogFormatError` for a file it cannot
 turn into a :class:`~windahrs.flight.Flight` (unknown format, truncated or corrupt file,

@@ -1,4 +1,4 @@
-"""Estimators in simulated wind: N seeded flights of one scenario, every estimator on
+"""The Monte Carlo runner: estimators in simulated wind, N seeded flights of one scenario, every estimator on
 each, RMSE aggregated over runs (``windahrs experiment``).
 
 Aggregation: per axis, the root of the mean over runs of the squared per-run RMSE (the
