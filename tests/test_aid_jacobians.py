@@ -86,7 +86,7 @@ def _h_and_H(st, aid: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # t
     else:
         tas, aoa, beta = 15.0, 0.05, -0.03
         use_v = bool(cfg[K.C_IV] >= 0)
-        vanes, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
+        _, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
         if aid == "air":
             fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, tas, ca, sa, cb, sb, use_v, 0.0)
         elif aid == "tas":
