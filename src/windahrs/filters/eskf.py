@@ -25,6 +25,8 @@ gives their defaults.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from windahrs.aid import air_vector, drag, gnss_vel, gravity, mag, sideslip, tas
@@ -62,7 +64,9 @@ class Mekf(CompiledEstimator):
     requires = frozenset({"imu"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
     default_params = MEKF_FIELD
-    parts = (process.ATTITUDE_PARAMS, process.GYRO_SCALE_PARAMS, gravity.PARAMS, mag.PARAMS, mag.BIAS_PARAMS)
+    parts: ClassVar[tuple[tuple[str, ...], ...]] = (
+        process.ATTITUDE_PARAMS, process.GYRO_SCALE_PARAMS, gravity.PARAMS, mag.PARAMS, mag.BIAS_PARAMS
+    )
 
 
 class MekfAir(CompiledEstimator):
