@@ -29,8 +29,8 @@ REGISTRY: dict[str, tuple[str, str, str]] = {
     "ins-wind": ("windahrs.filters.eskf", "InsWind", "error-state INS with wind states (recommended)"),
     "ins-drag": ("windahrs.filters.eskf", "InsDrag", "ins-wind fusing multirotor drag: wind without a pitot"),
     "usque": (
-        "windahrs.filters.compiled_usque",
-        "UsqueFast",
+        "windahrs.filters.usque",
+        "Usque",
         "error-state unscented filter (USQUE), GRP attitude error + gyro bias",
     ),
     "ahrs-ekf": ("windahrs.baselines", "AhrsEkf", "ahrs package EKF"),

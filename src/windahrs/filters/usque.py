@@ -1,24 +1,30 @@
 """[usque] Unscented quaternion estimator (SPEC 4.1; Crassidis & Markley, JGCA 26(4), 2003),
-written for Hamilton quaternions and a body-frame error.
+written for Hamilton quaternions and a body-frame error, in numba nopython kernels.
 
 The state is the attitude ``q_nb`` with the gyro bias; the filter's uncertainty lives in
 the 6-dim tangent vector ``[dp, db]``, ``dp`` the generalised Rodrigues parameters (GRP,
 a = 1, f = 4) of the body-frame error ``q_true = q_hat * dq(dp)``. With f = 2(a + 1),
 ``dp = 4 tan(|dtheta|/4) e = dtheta + O(|dtheta|^3)``.
 
-Everything the error-state [mekf] decides is decided the same way here: parameters
-(:class:`~windahrs.filters.params.EskfParams`), initialisation (InitialState or TRIAD,
-waiting for a magnetometer sample), the process noise (the Farrenkopf closed form of SPEC
-2.4), the measurement models and their noise (:mod:`windahrs.models.observations`:
-the accelerometer as gravity only, the magnetometer in 3-D or as heading), the
-magnetometer reference, the gates (``| |f| - g |`` and the per-component innovation
-test) and the innovation log. Only the way the mean and covariance travel through the
-models differs: unscented transforms with 2n + 1 = 13 sigma points, lambda = 1.
+Everything the error-state [mekf] decides is decided the same way here, and taken from
+:mod:`windahrs.core` rather than written again: parameters
+(:class:`~windahrs.filters.params.EskfParams`), the :class:`~windahrs.core.layout.KernelState`
+(encoded by ``make_state`` for an [att, bg] layout), initialisation (InitialState or TRIAD,
+waiting for a magnetometer sample), the magnetometer reference, the scalar quaternion
+helpers, the innovation logs, the recording of states and covariance and the streamer
+(:class:`~windahrs.core.kernel.CompiledStreamer` with the step loop swapped). The process
+noise is the Farrenkopf closed form of SPEC 2.4; the measurement models are those of
+:mod:`windahrs.models.observations` (the accelerometer as gravity only, the magnetometer in
+3-D or as heading), with [mekf]'s gates (``| |f| - g |`` and the per-component innovation
+test). Only the way the mean and covariance travel through the models differs: unscented
+transforms with 2n + 1 = 13 sigma points, lambda = 1, the same weights for mean and
+covariance.
 
-Sigma-point predictions: by default all 13 points at once (the models' rotation written
-out for a batch); ``Usque(reference=True)`` calls the model functions of
-:mod:`windahrs.models.observations` once per point instead and keeps only their
-prediction (readable, about four times slower). The tests hold the two equal.
+This module is the only implementation; run with ``NUMBA_DISABLE_JIT=1`` it is the readable
+reference (tests/test_usque.py holds the two equal). The sigma points and their predictions
+live in scratch rows of the kernel's ``work`` array (the U_* row offsets below), so nothing
+is allocated per sample (except in the eigen-square-root fallback, which runs only when
+rounding has made P indefinite).
 
 The covariance is that of ``[dp, dbg]``; it is reported as the covariance of the
 body-frame rotation-vector error (labels ``att_*``) without conversion, since
@@ -27,337 +33,493 @@ body-frame rotation-vector error (labels ``att_*``) without conversion, since
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+import math
 from typing import ClassVar
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numba import njit
+from numpy.typing import NDArray
 
-from windahrs.filters.base import Estimator, InitialState, StateView, Streamer, triad
-from windahrs.filters.params import EskfParams
-from windahrs.flight import Site
-from windahrs.models import observations as obs
-from windahrs.models.error_state import Layout, NominalState
-from windahrs.rotation import (
-    dcm_from_quat,
-    euler_from_quat,
-    quat_conj,
-    quat_exp,
-    quat_from_euler,
-    quat_mul,
-    quat_normalize,
+from windahrs.aid.mag import _set_mag_reference
+from windahrs.core.kalman import _inverse_small, _log
+from windahrs.core.kernel import (
+    _STREAMS,
+    CompiledStreamer,
+    Kind,
+    _grow,
+    _innovations,
+    _try_init,
+    effective_mag_mode,
+    layout_for,
+    make_state,
+    record,
 )
+from windahrs.core.layout import (
+    _JIT,
+    C_CAP,
+    C_MAG,
+    INN_ACCEL,
+    INN_MAG,
+    K_SKIP,
+    L_CNT,
+    MAG_3D,
+    MAG_OFF,
+    N_SENSORS,
+    R_ACC_VAR,
+    R_GATE2_ACC,
+    R_GATE2_MAG,
+    R_GRAV,
+    R_MAG_SIGMA,
+    R_MAG_VAR,
+    R_NORM_GATE,
+    R_SB2,
+    R_SG2,
+    S_FLAST,
+    S_FMAG,
+    S_INIT,
+    S_MAGN,
+    SENSOR_STREAMS,
+    SENSORS,
+    X_BG,
+    X_FLAST,
+    X_FMAG,
+    X_MAGN,
+    X_Q,
+    X_TIMU,
+    KernelState,
+)
+from windahrs.core.quat import (
+    _dcm9,
+    _euler,
+    _qexp,
+    _qmul,
+    _qnormalize,
+    _quat_from_euler,
+    _wrap_pi,
+)
+from windahrs.estimate import Estimate
+from windahrs.filters.base import EVENT_IMU, EVENT_MAG, Estimator, InitialState, merge_events
+from windahrs.filters.params import EskfParams
+from windahrs.flight import Flight, Site
+from windahrs.rotation import quat_normalize
 
-__all__ = [
-    "GRP_A",
-    "GRP_F",
-    "USQUE_LAMBDA",
-    "Usque",
-    "UsqueStreamer",
-    "grp_from_quat",
-    "process_noise",
-    "quat_from_grp",
-    "sigma_weights",
-]
+__all__ = ["GRP_A", "GRP_F", "USQUE_LAMBDA", "Usque", "UsqueStreamer", "run_usque", "sqrt_cov"]
 
 F64 = NDArray[np.float64]
-
-
-def mag_reference(site: Site, q_nb: F64, mag_b: F64) -> F64:
-    """The nav-frame field: the site's, or (unknown site) the first sample's, with its
-    horizontal part taken as north."""
-    if site.mag_n is not None:
-        return site.mag_n.copy()
-    m = dcm_from_quat(q_nb) @ mag_b
-    return np.array([np.hypot(m[0], m[1]), 0.0, m[2]])
-PointModel = Callable[[F64, F64], F64]
 
 #: Generalised Rodrigues parameters: a and f = 2 (a + 1), so that dp ~ dtheta.
 GRP_A = 1.0
 GRP_F = 2.0 * (GRP_A + 1.0)
 #: Sigma-point spread of the 6-dim state (Crassidis & Markley use lambda = 1).
 USQUE_LAMBDA = 1.0
-_N = 6
-_LAYOUT = Layout(("att", "bg"))
+
+_N = 6  # [dp, dbg]
+_NP = 2 * _N + 1  # sigma points
+_SPREAD = _N + USQUE_LAMBDA
+_W0 = USQUE_LAMBDA / (_N + USQUE_LAMBDA)  # weight of the centre ...
+_WI = 0.5 / (_N + USQUE_LAMBDA)  # ... and of each +- point
+_F2 = GRP_F * GRP_F
+
+# Scratch rows of KernelState.work (N_WORK = 66 rows of NMAX = 19 columns).
+U_S = 0  # (13, 6) sigma offsets [dp, db]
+U_Q = 13  # (13, 4) sigma-point quaternions
+U_Y = 26  # (13, 6) propagated errors X, or (13, m) predicted measurements Y
+U_L = 39  # (6, 6) square root of (n + lambda) P
+U_PYY = 45  # (3, 3) innovation covariance
+U_SI = 48  # (3, 3) its inverse
+U_PXY = 51  # (6, 3) cross covariance
+U_K = 57  # (6, 3) gain
+U_MEAN = 63  # mean of X or Y
+U_NU = 64  # innovation
+U_DX = 65  # correction [dp, db]
+
+_KERNEL_KIND: Kind = "mekf"  # the [att, bg] layout and initialisation of make_state / _try_init
 
 
-def quat_from_grp(dp: ArrayLike) -> F64:
-    """Error quaternion (..., 4) from generalised Rodrigues parameters (..., 3) (SPEC 4.1).
-
-    ``|dp| <= 4`` covers every rotation up to 180 deg; larger ``dp`` give the same
-    rotations again with ``dq0 < 0``.
-    """
-    p = np.asarray(dp, dtype=np.float64)
-    s = np.einsum("...i,...i->...", p, p)[..., None]
-    # SPEC 4.1: dq0 = (-a s + f sqrt(f^2 + (1 - a^2) s)) / (f^2 + s); a = 1 drops the root.
-    q0 = (GRP_F * GRP_F - s) / (GRP_F * GRP_F + s)
-    return np.concatenate([q0, (GRP_A + q0) * p / GRP_F], axis=-1)
+# --- generalised Rodrigues parameters ----------------------------------------------------------
 
 
-def grp_from_quat(dq: ArrayLike) -> F64:
-    """Generalised Rodrigues parameters (..., 3) of unit error quaternions (..., 4).
-
-    ``dq`` and ``-dq`` give the same result (the one with ``dq0 >= 0``: the shorter
-    rotation, ``|dp| <= 4``), so the map is defined for every rotation.
-    """
-    q = np.asarray(dq, dtype=np.float64)
-    sign = np.where(q[..., :1] < 0.0, -1.0, 1.0)
-    return GRP_F * sign * q[..., 1:] / (GRP_A + sign * q[..., :1])
-
-
-def sigma_weights(n: int = _N, lam: float = USQUE_LAMBDA) -> F64:
-    """Weights (2n + 1,) of the centre and of the +- points: lambda/(n + lambda) and
-    1/(2(n + lambda)); the same for the mean and the covariance."""
-    w = np.full(2 * n + 1, 0.5 / (n + lam))
-    w[0] = lam / (n + lam)
-    return w
+@njit(**_JIT)
+def _dq_from_grp(p0, p1, p2):
+    """Error quaternion of the GRP ``dp`` (SPEC 4.1: dq0 = (-a s + f sqrt(f^2 + (1 - a^2) s))
+    / (f^2 + s), s = |dp|^2; a = 1 drops the root). ``|dp| <= 4`` covers every rotation up to
+    180 deg; larger ``dp`` give the same rotations again with ``dq0 < 0``."""
+    s = p0 * p0 + p1 * p1 + p2 * p2
+    q0 = (_F2 - s) / (_F2 + s)
+    c = GRP_A + q0
+    return q0, c * p0 / GRP_F, c * p1 / GRP_F, c * p2 / GRP_F
 
 
-def process_noise(gyro_noise: float, gyro_bias_noise: float, dt: float) -> F64:
-    """Discrete process noise (6, 6) of ``[dtheta, dbg]`` over ``dt`` s (SPEC 2.4, the
-    Farrenkopf closed form; the same as the [att, bg] blocks of the error-state model).
-    gyro_noise rad/s/sqrt(Hz), gyro_bias_noise rad/s^2/sqrt(Hz)."""
-    sg2, sb2 = gyro_noise**2, gyro_bias_noise**2
-    Q = np.zeros((_N, _N))
-    i = np.arange(3)
-    Q[i, i] = sg2 * dt + sb2 * dt**3 / 3.0
-    Q[i, i + 3] = Q[i + 3, i] = -sb2 * dt**2 / 2.0
-    Q[i + 3, i + 3] = sb2 * dt
-    return Q
+@njit(**_JIT)
+def _grp_from_dq(q0, q1, q2, q3):
+    """GRP of a unit error quaternion; ``dq`` and ``-dq`` give the same result (the one with
+    ``dq0 >= 0``: the shorter rotation, ``|dp| <= 4``), so the map is defined everywhere."""
+    sign = -1.0 if q0 < 0.0 else 1.0
+    d = GRP_A + sign * q0
+    return GRP_F * sign * q1 / d, GRP_F * sign * q2 / d, GRP_F * sign * q3 / d
 
 
-def _left(q: F64) -> F64:
-    """The matrix (4, 4) of ``p -> q * p``: ``quat_mul(q, p) == _left(q) @ p``."""
-    w, x, y, z = q
-    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+# --- sigma points -------------------------------------------------------------------------
 
 
-def _rotate_inv(Q: F64, r_n: F64) -> F64:
-    """``C_bn(q_i) r_n`` (13, 3) for unit quaternions Q (13, 4): the models' prediction
-    ``dcm_from_quat(q).T @ r_n`` for all points at once (expanded, as the matrix
-    route costs far more than the arithmetic)."""
-    w, v = Q[:, :1], Q[:, 1:]
-    x, y, z = r_n
-    v_cross_r = v @ np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])  # rows v_i x r_n
-    radial = (w * w - np.sum(v * v, axis=1, keepdims=True)) * r_n + 2.0 * (v @ r_n)[:, None] * v
-    return radial - 2.0 * w * v_cross_r
+@njit(**_JIT)
+def sqrt_cov(P, spread, L):
+    """A square root L[:6, :6] with ``L L^T = spread P``: the lower Cholesky factor of
+    ``spread`` times the symmetrised P; if rounding has left that indefinite, the eigen square
+    root with negative eigenvalues clipped to zero."""
+    h = spread * 0.5
+    for i in range(_N):
+        for j in range(_N):
+            L[i, j] = h * (P[i, j] + P[j, i])
+    ok = True
+    for j in range(_N):  # in place: L[i, j] (i >= j) still holds A[i, j] when first read
+        s = L[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:  # LAPACK's test (NaN included)
+            ok = False
+            break
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, _N):
+            v = L[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / d
+        for i in range(j):
+            L[i, j] = 0.0
+    if ok:
+        return
+    A = np.empty((_N, _N))
+    for i in range(_N):
+        for j in range(_N):
+            A[i, j] = h * (P[i, j] + P[j, i])
+    w, V = np.linalg.eigh(A)
+    for j in range(_N):
+        r = math.sqrt(max(w[j], 0.0))
+        for i in range(_N):
+            L[i, j] = V[i, j] * r
 
 
-def _sqrt_cov(P: F64, spread: float) -> F64:
-    """A square root ``L`` (6, 6) with ``L L^T = spread P``: Cholesky of the symmetrised
-    matrix; if rounding has left it indefinite, the eigen square root with negative
-    eigenvalues clipped to zero."""
-    A: F64 = spread * 0.5 * (P + P.T)
-    try:
-        return np.asarray(np.linalg.cholesky(A), dtype=np.float64)
-    except np.linalg.LinAlgError:
-        w, V = np.linalg.eigh(A)
-        return np.asarray(V * np.sqrt(np.clip(w, 0.0, None)), dtype=np.float64)
+@njit(**_JIT)
+def _sigma(x, P, work):
+    """Sigma offsets S = 0, +-columns of sqrt((n + lambda) P) and the
+    point quaternions q_i = q * dq(S_i^p) (the biases are bg + S_i^b, formed by callers)."""
+    S, Q, L = work[U_S : U_S + _NP], work[U_Q : U_Q + _NP], work[U_L : U_L + _N]
+    sqrt_cov(P, _SPREAD, L)
+    for c in range(_N):
+        S[0, c] = 0.0
+        for i in range(_N):
+            v = L[c, i]  # column i of L
+            S[1 + i, c] = v
+            S[1 + _N + i, c] = -v
+    a0, a1, a2, a3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    for i in range(_NP):
+        d = _dq_from_grp(S[i, 0], S[i, 1], S[i, 2])
+        Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = _qmul(a0, a1, a2, a3, d[0], d[1], d[2], d[3])
 
 
-def _wrap(a: F64) -> F64:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
+@njit(**_JIT)
+def _weighted_cov(D, n, C):
+    """C[:n, :n] = sum_i w_i D_i D_i^T over the 13 rows of D (exactly symmetric)."""
+    for r in range(n):
+        for c in range(r, n):
+            s = _W0 * D[0, r] * D[0, c]
+            for i in range(1, _NP):
+                s += _WI * D[i, r] * D[i, c]
+            C[r, c] = s
+            C[c, r] = s
 
 
-class UsqueStreamer(Streamer):
-    """USQUE fed sample by sample (see the module docstring)."""
+@njit(**_JIT)
+def _centre(Y, n, mean):
+    """mean[:n] = sum_i w_i Y_i; Y[:, :n] -= mean."""
+    for c in range(n):
+        s = _W0 * Y[0, c]
+        for i in range(1, _NP):
+            s += _WI * Y[i, c]
+        mean[c] = s
+        for i in range(_NP):
+            Y[i, c] -= s
+
+
+@njit(**_JIT)
+def _add_process_noise(sg2, sb2, dt, P):
+    """P[:6, :6] += the discrete process noise of ``[dtheta, dbg]`` over ``dt`` s (SPEC 2.4,
+    the Farrenkopf closed form; the [att, bg] blocks of the error-state model). sg2: gyro
+    noise density squared (rad/s)^2/Hz, sb2: bias random walk squared (rad/s^2)^2/Hz."""
+    qaa = sg2 * dt + sb2 * dt**3 / 3.0
+    qab = -sb2 * dt**2 / 2.0
+    qbb = sb2 * dt
+    for k in range(3):
+        P[k, k] += qaa
+        P[k, k + 3] += qab
+        P[k + 3, k] += qab
+        P[k + 3, k + 3] += qbb
+
+
+@njit(**_JIT)
+def _propagate(prm, x, P, work, w0, w1, w2, dt):
+    """SPEC 4.1 steps 1-4 over ``dt`` s with the gyro sample ``w`` (rad/s): the points through
+    the exact quaternion exponential, their errors about the propagated centre, mean,
+    covariance plus process noise, and the new estimate."""
+    _sigma(x, P, work)
+    S, Q, X = work[U_S : U_S + _NP], work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
+    mean = work[U_MEAN]
+    for i in range(_NP):
+        b0, b1, b2 = x[X_BG] + S[i, 3], x[X_BG + 1] + S[i, 4], x[X_BG + 2] + S[i, 5]
+        e = _qexp((w0 - b0) * dt, (w1 - b1) * dt, (w2 - b2) * dt)
+        Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = _qmul(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3], e[0], e[1], e[2], e[3])
+        X[i, 3], X[i, 4], X[i, 5] = b0, b1, b2
+    # errors relative to the propagated centre: dp(q_0^* q_i), dp_0 = 0 exactly
+    c0, c1, c2, c3 = Q[0, 0], -Q[0, 1], -Q[0, 2], -Q[0, 3]
+    X[0, 0], X[0, 1], X[0, 2] = 0.0, 0.0, 0.0
+    for i in range(1, _NP):
+        d = _qmul(c0, c1, c2, c3, Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3])
+        X[i, 0], X[i, 1], X[i, 2] = _grp_from_dq(d[0], d[1], d[2], d[3])
+    _centre(X, _N, mean)
+    _weighted_cov(X, _N, P)
+    _add_process_noise(prm[R_SG2], prm[R_SB2], dt, P)
+    d = _dq_from_grp(mean[0], mean[1], mean[2])
+    q = _qmul(Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3], d[0], d[1], d[2], d[3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    x[X_BG], x[X_BG + 1], x[X_BG + 2] = mean[3], mean[4], mean[5]
+
+
+@njit(**_JIT)
+def _predict_vector(work, r0, r1, r2):
+    """Y_i = C_bn(q_i) r for the 13 point quaternions: the prediction of
+    ``observations.specific_force`` (r = -g_n) and ``vector_body`` (r = m_n), expanded."""
+    Q, Y = work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
+    for i in range(_NP):
+        w, v0, v1, v2 = Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]
+        c0, c1, c2 = v1 * r2 - v2 * r1, v2 * r0 - v0 * r2, v0 * r1 - v1 * r0  # v x r
+        a = w * w - (v0 * v0 + v1 * v1 + v2 * v2)
+        b = 2.0 * (v0 * r0 + v1 * r1 + v2 * r2)
+        Y[i, 0] = (a * r0 + b * v0) - 2.0 * w * c0
+        Y[i, 1] = (a * r1 + b * v1) - 2.0 * w * c1
+        Y[i, 2] = (a * r2 + b * v2) - 2.0 * w * c2
+
+
+@njit(**_JIT)
+def _predict_heading(work):
+    """The points' yaw (``observations.heading``), unwrapped about the centre's:
+    Y_0 + wrap(Y_i - Y_0)."""
+    Q, Y = work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
+    for i in range(_NP):
+        Y[i, 0] = _euler(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3])[2]
+    y0 = Y[0, 0]
+    for i in range(_NP):
+        Y[i, 0] = y0 + _wrap_pi(Y[i, 0] - y0)
+
+
+@njit(**_JIT)
+def _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, gate2, angle):
+    """SPEC 4.1 step 5 once ``_sigma`` and the predictions
+    Y (13, m) are in place: the measurement is in work[U_NU, :m], noise ``var`` I (m = 1
+    or 3); ``angle``: differences wrapped to +-pi. Returns whether it was accepted."""
+    S, Y = work[U_S : U_S + _NP], work[U_Y : U_Y + _NP]
+    Pyy, Si = work[U_PYY : U_PYY + 3], work[U_SI : U_SI + 3]
+    Pxy, K = work[U_PXY : U_PXY + _N], work[U_K : U_K + _N]
+    y, nu, dx = work[U_MEAN], work[U_NU], work[U_DX]
+    _centre(Y, m, y)
+    _weighted_cov(Y, m, Pyy)
+    for k in range(m):
+        Pyy[k, k] += var
+        z = nu[k]
+        nu[k] = _wrap_pi(z - y[k]) if angle else z - y[k]
+    for r in range(_N):
+        for k in range(m):
+            s = _W0 * S[0, r] * Y[0, k]
+            for i in range(1, _NP):
+                s += _WI * S[i, r] * Y[i, k]
+            Pxy[r, k] = s
+    _inverse_small(Pyy, Si, m)
+    nis = 0.0
+    bad = 0
+    for k in range(m):
+        v = 0.0
+        for l in range(m):
+            v += Si[k, l] * nu[l]
+        nis += nu[k] * v
+        if not (nu[k] * nu[k] <= gate2 * Pyy[k, k]):
+            bad += 1
+    accepted = bad == 0
+    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
+    if not accepted:
+        return False
+    # K = Pxy Pyy^-1, dx = K nu, P -= K Pyy K^T (then symmetrised)
+    for r in range(_N):
+        s = 0.0
+        for k in range(m):
+            v = 0.0
+            for l in range(m):
+                v += Si[k, l] * Pxy[r, l]
+            K[r, k] = v
+            s += v * nu[k]
+        dx[r] = s
+    for r in range(_N):
+        for c in range(_N):
+            s = 0.0
+            for k in range(m):
+                kp = 0.0
+                for l in range(m):
+                    kp += K[r, l] * Pyy[l, k]
+                s += kp * K[c, k]
+            P[r, c] -= s
+    for r in range(_N):
+        for c in range(r + 1, _N):
+            v = 0.5 * (P[r, c] + P[c, r])
+            P[r, c] = v
+            P[c, r] = v
+    d = _dq_from_grp(dx[0], dx[1], dx[2])
+    q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], d[0], d[1], d[2], d[3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    for a in range(3):
+        x[X_BG + a] += dx[3 + a]
+    return True
+
+
+# --- event steps and the loop ---------------------------------------------------------------
+
+
+@njit(inline="always", **_JIT)
+def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
+    """An IMU sample row = [w_b, f_b] (finite): initialise, or propagate and fuse the
+    accelerometer as gravity (gated on ``| |f| - g |``)."""
+    fx, fy, fz = row[3], row[4], row[5]
+    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = fx, fy, fz
+    flags[S_FLAST] = 1
+    if flags[S_INIT] == 0:
+        _try_init(cfg, prm, x, flags, P, work)
+        x[X_TIMU] = t
+        return
+    dt = t - x[X_TIMU]
+    x[X_TIMU] = t
+    if dt > 0:
+        _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
+    nu = work[U_NU]
+    g = prm[R_GRAV]
+    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
+        nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
+        _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
+        return
+    _sigma(x, P, work)
+    _predict_vector(work, -0.0, -0.0, -g)  # -g_n
+    nu[0], nu[1], nu[2] = fx, fy, fz
+    sensor, m = np.int64(INN_ACCEL), np.int64(3)
+    _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, prm[R_ACC_VAR], prm[R_GATE2_ACC], False)
+
+
+@njit(inline="always", **_JIT)
+def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
+    """A magnetometer sample row[:3] (tesla, body; finite): initialise, or fuse it in 3-D or
+    as heading."""
+    mx, my, mz = row[0], row[1], row[2]
+    if flags[S_INIT] == 0:
+        if flags[S_FMAG] == 0:
+            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = mx, my, mz
+            flags[S_FMAG] = 1
+        _try_init(cfg, prm, x, flags, P, work)
+        return
+    mode = cfg[C_MAG]
+    if mode == MAG_OFF:
+        return
+    if flags[S_MAGN] == 0:
+        _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
+    rx, ry, rz = x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
+    nu = work[U_NU]
+    sensor = np.int64(INN_MAG)
+    if mode == MAG_3D:
+        _sigma(x, P, work)
+        _predict_vector(work, rx, ry, rz)
+        nu[0], nu[1], nu[2] = mx, my, mz
+        _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(3), prm[R_MAG_VAR], prm[R_GATE2_MAG], False)
+        return
+    # heading only, tilt-compensated with the current roll/pitch estimate (as [mekf])
+    roll, pitch, _ = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    ql = _quat_from_euler(roll, pitch, 0.0)
+    c = _dcm9(ql[0], ql[1], ql[2], ql[3])
+    m0 = c[0] * mx + c[1] * my + c[2] * mz
+    m1 = c[3] * mx + c[4] * my + c[5] * mz
+    nu[0] = math.atan2(ry, rx) - math.atan2(m1, m0)
+    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
+    _sigma(x, P, work)
+    _predict_heading(work)
+    _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(1), sigma**2, prm[R_GATE2_MAG], True)
+
+
+@njit(**_JIT)
+def run_usque(st, t_ev, kinds, vals, out_q, out_bg, out_vw, out_cov, rec):
+    """core.kernel.run_events for [usque]: feed the merged events (t_ev (E,), kinds (E,),
+    vals (E, 6)), skip and count NaN samples, and (rec) record for IMU sample k the state
+    after every event with t <= t_imu[k]. out_vw: an empty (0, 3) array (no velocity or
+    wind states). Events other than IMU and magnetometer are ignored."""
+    k = np.int64(-1)
+    cfg, prm, x, flags, P, work, _, inn, acc = st
+    n_ev = t_ev.shape[0]
+    for i in range(n_ev):
+        kind = kinds[i]
+        t = t_ev[i]
+        row = vals[i]
+        if kind == EVENT_IMU:
+            k += 1
+            ok = True
+            for a in range(6):
+                if not math.isfinite(row[a]):
+                    ok = False
+            if ok:
+                _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row)
+            else:
+                flags[K_SKIP] += 1
+        elif kind == EVENT_MAG:
+            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
+                _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row)
+            else:
+                flags[K_SKIP + 1] += 1
+        if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
+            record(cfg, x, flags, P, work, k, out_q, out_bg, out_vw, out_vw, out_cov)
+
+
+# --- Python side ----------------------------------------------------------------------------
+
+
+def _kernel_params(params: EskfParams) -> EskfParams:
+    """The parameters make_state encodes: [usque] carries no magnetometer-bias states
+    whatever init_mag_bias says, so the [att, bg] layout."""
+    return params.replace(init_mag_bias=0.0) if params.init_mag_bias > 0 else params
+
+
+def _kernel_initial(initial: InitialState | None) -> InitialState | None:
+    """The given attitude normalised (the [mekf] kernels take it as is)."""
+    if initial is None:
+        return None
+    return dataclasses.replace(initial, q_nb=quat_normalize(np.asarray(initial.q_nb, dtype=np.float64)))
+
+
+class UsqueStreamer(CompiledStreamer):
+    """[usque] fed sample by sample through the batch loop :func:`run_usque` (so a flight
+    streamed equals its batch estimate bit for bit)."""
 
     def __init__(
-        self,
-        name: str,
-        params: EskfParams,
-        site: Site,
-        initial: InitialState | None,
-        has: frozenset[str],
-        *,
-        reference: bool = False,
+        self, name: str, params: EskfParams, site: Site, initial: InitialState | None, has: frozenset[str]
     ) -> None:
-        super().__init__(name)
-        self.p = params
-        self.site = site
-        self.g_n = site.gravity_n
-        self.reference = reference
-        self.initial = initial
-        self.wait_mag = "mag" in has and params.mag_mode != "off" and initial is None
-        self.spread = _N + USQUE_LAMBDA
-        self.w = sigma_weights()
-        self.q: F64 | None = None
-        self.bg = np.zeros(3)
-        self.P = np.full((_N, _N), np.nan)
-        self.mag_n: F64 | None = None
-        self.t_imu: float | None = None
-        self.f_last: F64 | None = None
-        self._first_mag: F64 | None = None
+        super().__init__(name, _KERNEL_KIND, False, _kernel_params(params), site, _kernel_initial(initial), has)
 
-    # -- initialisation (as [mekf]) ----------------------------------------------------
-    def _try_init(self) -> None:
-        if self.q is not None or self.f_last is None:
-            return
-        if self.wait_mag and self._first_mag is None:
-            return
-        p, ini = self.p, self.initial
-        if ini is not None:
-            q = quat_normalize(np.asarray(ini.q_nb, dtype=np.float64))
-        else:
-            q = triad(self.f_last, self._first_mag, self.site.mag_n)
-        if ini is not None and ini.gyro_bias_b is not None:
-            self.bg = np.asarray(ini.gyro_bias_b, dtype=np.float64).copy()
-        s_att = p.init_att if ini is None or ini.sigma_att is None else ini.sigma_att
-        s_bias = p.init_bias if ini is None or ini.sigma_bias is None else ini.sigma_bias
-        self.q = q
-        self.P = np.diag([s_att**2] * 3 + [s_bias**2] * 3)
-        if self._first_mag is not None or self.site.mag_n is not None:
-            self.mag_n = mag_reference(
-                self.site, q, self._first_mag if self._first_mag is not None else np.zeros(3)
-            )
+    def _step(self, kind: int, t: float) -> None:
+        st = self._st
+        if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
+            self._st = st = _grow(st)  # an event logs at most one row per sensor
+        self._t[0] = t
+        self._kind[0] = kind
+        run_usque(st, self._t, self._kind, self._row, self._none[0], self._none[1], self._none[2], self._none[4], False)
 
-    # -- sigma points --------------------------------------------------------------------
-    def _sigma(self) -> tuple[F64, F64, F64]:
-        """Offsets (13, 6) ``0, +-columns of sqrt((n + lambda) P)`` and the points they
-        make about the current estimate: q (13, 4), bg (13, 3)."""
-        assert self.q is not None
-        L = _sqrt_cov(self.P, self.spread)
-        S = np.zeros((2 * _N + 1, _N))
-        S[1 : _N + 1] = L.T
-        S[_N + 1 :] = -L.T
-        Q = quat_from_grp(S[:, :3]) @ _left(self.q).T
-        return S, Q, self.bg + S[:, 3:]
+    def _gnss(self, t: float, v_n: F64) -> None:
+        """[usque] fuses no GNSS velocity."""
 
-    def _propagate(self, w_b: F64, dt: float) -> None:
-        """SPEC 4.1 steps 1-4."""
-        _, Q, B = self._sigma()
-        Q = quat_mul(Q, quat_exp((w_b - B) * dt))
-        # Errors relative to the propagated centre (dp_0 = 0 exactly).
-        X = np.empty((2 * _N + 1, _N))
-        X[:, :3] = grp_from_quat(Q @ _left(quat_conj(Q[0])).T)
-        X[0, :3] = 0.0
-        X[:, 3:] = B
-        x = self.w @ X
-        D = X - x
-        P = (D.T * self.w) @ D + process_noise(self.p.gyro_noise, self.p.gyro_bias_noise, dt)
-        self.P = 0.5 * (P + P.T)
-        self.q = quat_normalize(_left(Q[0]) @ quat_from_grp(x[:3]))
-        self.bg = x[3:]
-
-    def _update(
-        self, sensor: str, t: float, z: F64, h: PointModel, R: F64, gate: float, *, angle: bool = False
-    ) -> bool:
-        """SPEC 4.1 step 5 for one measurement ``z`` (m,) with the point model ``h``
-        (q (13, 4), bg (13, 3)) -> (13, m), noise ``R`` (m, m) and the per-component gate.
-        ``angle``: z is an angle (differences wrapped to +-pi)."""
-        S, Q, B = self._sigma()
-        Y = h(Q, B)
-        if angle:
-            Y = Y[0] + _wrap(Y - Y[0])
-        y = self.w @ Y
-        dY = Y - y
-        Pyy = (dY.T * self.w) @ dY + R
-        Pxy = (S.T * self.w) @ dY
-        nu = _wrap(z - y) if angle else z - y
-        # One solve for the NIS and the gain: Pyy^-1 [nu, Pxy^T].
-        sol = np.linalg.solve(Pyy, np.column_stack([nu, Pxy.T]))
-        nis = float(nu @ sol[:, 0])
-        accepted = bool(np.all(nu**2 <= gate**2 * np.diag(Pyy)))
-        self._log(sensor, t, nu, nis, accepted)
-        if not accepted:
-            return False
-        K = sol[:, 1:].T
-        dx = K @ nu
-        P = self.P - K @ Pyy @ K.T
-        self.P = 0.5 * (P + P.T)
-        assert self.q is not None
-        self.q = quat_normalize(_left(self.q) @ quat_from_grp(dx[:3]))
-        self.bg = self.bg + dx[3:]
-        return True
-
-    def _points(self, model: Callable[[NominalState], F64], batch: PointModel) -> PointModel:
-        """The point model: ``batch`` or, for the reference, ``model`` called per point."""
-        if not self.reference:
-            return batch
-
-        def loop(Q: F64, B: F64) -> F64:
-            return np.array([model(NominalState(q_nb=Q[i], bg=B[i])) for i in range(len(Q))])
-
-        return loop
-
-    # -- sensors ---------------------------------------------------------------------------
-    def _imu(self, t: float, w_b: F64, f_b: F64) -> None:
-        self.f_last = f_b
-        if self.q is None:
-            self._try_init()
-            self.t_imu = t
-            return
-        assert self.t_imu is not None
-        dt = t - self.t_imu
-        self.t_imu = t
-        if dt > 0:
-            self._propagate(w_b, dt)
-        self._fuse_accel(t, f_b)
-
-    def _fuse_accel(self, t: float, f_b: F64) -> None:
-        p = self.p
-        g_n = self.g_n
-        if abs(np.linalg.norm(f_b) - g_n[2]) > p.accel_norm_gate * g_n[2]:
-            self._log("accel", t, np.full(3, np.nan), np.nan, False)
-            return
-        h = self._points(
-            lambda x: obs.specific_force(_LAYOUT, x, g_n)[0],
-            lambda Q, B: _rotate_inv(Q, -g_n),
-        )
-        self._update("accel", t, f_b, h, p.accel_sigma**2 * np.eye(3), p.gate_accel)
-
-    def _mag(self, t: float, mag_b: F64) -> None:
-        if self.q is None:
-            if self._first_mag is None:
-                self._first_mag = mag_b
-            self._try_init()
-            return
-        p = self.p
-        if p.mag_mode == "off":
-            return
-        if self.mag_n is None:
-            self.mag_n = mag_reference(self.site, self.q, mag_b)
-        m_n = self.mag_n
-        if p.mag_mode == "3d":
-            h = self._points(
-                lambda x: obs.vector_body(_LAYOUT, x, m_n)[0],
-                lambda Q, B: _rotate_inv(Q, m_n),
-            )
-            self._update("mag", t, mag_b, h, p.mag_sigma**2 * np.eye(3), p.gate_mag)
-            return
-        # Heading only, as [mekf]: tilt-compensate with the current roll/pitch estimate.
-        roll, pitch, _ = euler_from_quat(self.q)
-        m_h = dcm_from_quat(quat_from_euler([roll, pitch, 0.0])) @ mag_b
-        decl = float(np.arctan2(m_n[1], m_n[0]))
-        psi_m = np.array([decl - np.arctan2(m_h[1], m_h[0])])
-        h = self._points(lambda x: obs.heading(_LAYOUT, x)[0], lambda Q, B: euler_from_quat(Q)[:, 2:])
-        sigma = p.mag_sigma / max(float(np.hypot(m_n[0], m_n[1])), 1e-9)
-        self._update("mag", t, psi_m, h, np.array([[sigma**2]]), p.gate_mag, angle=True)
-
-    @property
-    def state(self) -> StateView:
-        # P is the covariance of [dp, dbg]; with f = 4, dp = dtheta + O(|dtheta|^3), so it
-        # is reported as the covariance of the body-frame rotation-vector error as is.
-        if self.q is None:
-            q = triad(self.f_last, None, None) if self.f_last is not None else np.array([1.0, 0, 0, 0])
-            return StateView(
-                t=self._t_last,
-                q_nb=q,
-                gyro_bias_b=np.zeros(3),
-                v_n=None,
-                wind_n=None,
-                cov=np.full((_N, _N), np.nan),
-                state_labels=_LAYOUT.labels(),
-            )
-        return StateView(
-            t=self._t_last,
-            q_nb=self.q.copy(),
-            gyro_bias_b=self.bg.copy(),
-            v_n=None,
-            wind_n=None,
-            cov=self.P.copy(),
-            state_labels=_LAYOUT.labels(),
-        )
+    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
+        """[usque] fuses no air data."""
 
 
 class Usque(Estimator):
@@ -365,8 +527,8 @@ class Usque(Estimator):
     (gravity, gated) and magnetometer, with the models, noise and gates of [mekf].
 
     params: :class:`EskfParams` (the fields of [mekf]; accel_compensation must be "none":
-    this filter fuses no GNSS or air data to compensate with). reference: predict the
-    sigma points with one call of the measurement model per point (see module docstring).
+    this filter fuses no GNSS or air data to compensate with; init_mag_bias is ignored: no
+    magnetometer-bias states).
     """
 
     name: ClassVar[str] = "usque"
@@ -374,7 +536,7 @@ class Usque(Estimator):
     uses: ClassVar[frozenset[str]] = frozenset({"imu", "mag"})
     default_params: ClassVar[EskfParams] = EskfParams()
 
-    def __init__(self, params: EskfParams | None = None, *, reference: bool = False) -> None:
+    def __init__(self, params: EskfParams | None = None) -> None:
         p = params if params is not None else self.default_params
         if not isinstance(p, EskfParams):
             raise TypeError(f"params: expected EskfParams, found {type(p).__name__}")
@@ -384,9 +546,39 @@ class Usque(Estimator):
                 f"compensate the accelerometer with), found {p.accel_compensation!r}"
             )
         self.params = p
-        self.reference = reference
+
+    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+        """Estimate the whole flight in one compiled loop."""
+        self.check(flight)
+        has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
+        t_ev, kinds, vals = merge_events(flight, has)
+        counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
+        fused = ("accel", "mag")  # [usque]'s aid sources
+        caps = np.array(
+            [counts[s] if k in fused else 0 for k, s in zip(SENSORS, SENSOR_STREAMS, strict=True)], dtype=np.int64
+        )
+        kp = _kernel_params(self.params)
+        st: KernelState = make_state(_KERNEL_KIND, False, kp, flight.site, _kernel_initial(initial), has, caps)
+        L = layout_for(_KERNEL_KIND, kp)
+        N = len(flight.imu.t)
+        q, bg, cov = np.empty((N, 4)), np.empty((N, 3)), np.empty((N, _N, _N))
+        run_usque(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, np.empty((0, 3)), cov, True)
+        skipped = st.flags[K_SKIP : K_SKIP + 4]
+        return Estimate(
+            filter=self.label,
+            t=flight.imu.t.copy(),
+            q_nb=q,
+            gyro_bias_b=bg,
+            v_n=None,
+            wind_n=None,
+            cov=cov,
+            state_labels=L.labels(),
+            innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
+            skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
+            params=self.params_text(),
+        )
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
     ) -> UsqueStreamer:
-        return UsqueStreamer(self.name, self.params, site, initial, has, reference=self.reference)
+        return UsqueStreamer(self.name, self.params, site, initial, has)
