@@ -30,7 +30,6 @@ from windahrs.core.layout import (
     C_OFF,
     L_CNT,
     L_FIRST,
-    NMAX,
     S_SEQ,
     W_DX,
     W_G,
@@ -144,26 +143,26 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     nu, dx = work[W_NU], work[W_DX]
     # U = H P, whole padded rows (P is exactly symmetric, so U^T = P H^T exactly)
     for k in range(m):
-        for j in range(NMAX):
+        for j in range(P.shape[1]):
             U[k, j] = 0.0
     for ci in range(nc):
         c = cols[ci]
         if m == 3:
             h0, h1, h2 = Hm[0, c], Hm[1, c], Hm[2, c]
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 p = P[c, j]
                 U[0, j] += h0 * p
                 U[1, j] += h1 * p
                 U[2, j] += h2 * p
         elif m == 2:
             h0, h1 = Hm[0, c], Hm[1, c]
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 p = P[c, j]
                 U[0, j] += h0 * p
                 U[1, j] += h1 * p
         else:
             h0 = Hm[0, c]
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 U[0, j] += h0 * P[c, j]
     for k in range(m):
         for l in range(m):
@@ -196,7 +195,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
         s00, s01, s02, s10, s11, s12 = S[0, 0], S[0, 1], S[0, 2], S[1, 0], S[1, 1], S[1, 2]
         s20, s21, s22 = S[2, 0], S[2, 1], S[2, 2]
         n0, n1, n2 = nu[0], nu[1], nu[2]
-        for j in range(NMAX):
+        for j in range(P.shape[1]):
             u0, u1, u2 = U[0, j], U[1, j], U[2, j]
             k0 = i00 * u0 + i01 * u1 + i02 * u2
             k1 = i10 * u0 + i11 * u1 + i12 * u2
@@ -208,7 +207,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 P[i, j] = ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
                     a2 * Gt[2, j] + b2 * Kt[2, j]
                 )
@@ -216,7 +215,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
         i00, i01, i10, i11 = Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1]
         s00, s01, s10, s11 = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
         n0, n1 = nu[0], nu[1]
-        for j in range(NMAX):
+        for j in range(P.shape[1]):
             u0, u1 = U[0, j], U[1, j]
             k0 = i00 * u0 + i01 * u1
             k1 = i10 * u0 + i11 * u1
@@ -226,18 +225,18 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1) - u1
         for i in range(n):
             a0, b0, a1, b1 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i]
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 P[i, j] = (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
     else:
         i00, s00, n0 = Si[0, 0], S[0, 0], nu[0]
-        for j in range(NMAX):
+        for j in range(P.shape[1]):
             k0 = i00 * U[0, j]
             Kt[0, j] = k0
             dx[j] = k0 * n0
             Gt[0, j] = 0.5 * (s00 * k0) - U[0, j]
         for i in range(n):
             a0, b0 = Kt[0, i], Gt[0, i]
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     if cfg[C_ADD] == 1:

@@ -218,8 +218,8 @@ def _try_init(cfg, prm, x, flags, P, work):
             x[X_W + a] = prm[R_INI_W + a] if cfg[C_INI_W] == 1 else 0.0
         x[X_BA + a] = 0.0
         x[X_BM + a] = 0.0
-    for i in range(NMAX):
-        for j in range(NMAX):
+    for i in range(P.shape[1]):
+        for j in range(P.shape[1]):
             P[i, j] = 0.0
     off = cfg[C_ADD]  # covariance index = error-state index + 1 after the quaternion
     for a in range(3):
@@ -486,6 +486,8 @@ _COMP = {"none": COMP_NONE, "gnss": COMP_GNSS, "airspeed": COMP_AIRSPEED}
 _MAG = {"3d": MAG_3D, "heading": MAG_HEADING, "off": MAG_OFF}
 _AIR = {"auto": AIR_AUTO, "vector": AIR_VECTOR, "airspeed": AIR_AIRSPEED, "off": AIR_OFF}
 _STREAMS = ("imu", "mag", "gnss", "air")
+#: The covariance is zero-padded to a multiple of PAD rows and columns (whole SIMD lanes).
+PAD = 4
 
 
 Kind = Literal["mekf", "mekf-air", "ins-wind"]
@@ -574,6 +576,7 @@ def make_state(
     cfg[C_DIM] = dim
     cfg[C_N] = n
     total = _log_layout(cfg, np.asarray(caps, dtype=np.int64))
+    n_pad = -(-n // PAD) * PAD  # the covariance's rows and columns, padded
 
     def sig(given: float | None, default: float) -> float:
         return default if given is None else given
@@ -634,8 +637,8 @@ def make_state(
         prm=prm,
         x=np.zeros(N_X),
         flags=flags,
-        P=np.zeros((NMAX, NMAX)),
-        work=np.zeros((N_WORK, NMAX)),
+        P=np.zeros((n_pad, n_pad)),
+        work=np.zeros((N_WORK, max(n_pad, NMAX))),  # (scratch rows span P's columns)
         sup=np.zeros((2, NMAX), dtype=np.int64),
         inn=np.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),

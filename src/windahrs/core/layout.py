@@ -4,9 +4,9 @@ between events, as flat arrays named by the index constants below, and the senso
 
 :class:`KernelState` holds nine arrays: the configuration (ints) and parameters (floats)
 encoded once from the estimator's parameters, the nominal state with the samples it
-remembers, flags and counters, the covariance (zero-padded to NMAX x NMAX so the inner loops
-have a constant length), scratch space and the innovation logs. Helpers take the arrays they
-need, not the KernelState: numba reference-counts every array taken out of a tuple.
+remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes, the inner
+loops running over whole padded rows), scratch space and the innovation logs. Helpers take
+the arrays they need, not the KernelState: numba reference-counts every array taken out of a tuple.
 """
 
 from __future__ import annotations
@@ -190,8 +190,8 @@ class KernelState(NamedTuple):
     prm: F64  # (N_PRM,) R_*
     x: F64  # (N_X,) X_*
     flags: I64  # (N_FLAGS,) S_*, L_*, K_*
-    P: F64  # (NMAX, NMAX) covariance in [:n, :n], zero padding
-    work: F64  # (N_WORK, NMAX) W_*
+    P: F64  # (n_pad, n_pad) covariance in [:n, :n], zero padding to whole SIMD lanes
+    work: F64  # (N_WORK, max(n_pad, NMAX)) W_*
     sup: I64  # (2, NMAX) columns where H (row 0) and Hq (row 1) may be non-zero
     inn: F64  # (L, 5) innovation log rows: t, nu (3, NaN-padded), nis
     acc: NDArray[np.bool_]  # (L,) accepted

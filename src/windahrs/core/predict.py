@@ -23,7 +23,6 @@ from windahrs.core.layout import (
     C_IV,
     C_IW,
     C_N,
-    NMAX,
     R_GRAV,
     R_SA2,
     R_SB2,
@@ -91,7 +90,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     r20, r21, r22 = c21 * -wy + c22 * xz, c21 * wx + c22 * yz, -dt + c22 * s22
     # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], whole padded rows. One
     # output row per loop keeps LLVM's runtime alias checks few enough to vectorise.
-    for j in range(NMAX):
+    for j in range(P.shape[1]):
         M[0, j] = (
             p00 * P[0, j]
             + p01 * P[1, j]
@@ -100,7 +99,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r01 * P[ib + 1, j]
             + (r02 * P[ib + 2, j])
         )
-    for j in range(NMAX):
+    for j in range(P.shape[1]):
         M[1, j] = (
             p10 * P[0, j]
             + p11 * P[1, j]
@@ -109,7 +108,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r11 * P[ib + 1, j]
             + (r12 * P[ib + 2, j])
         )
-    for j in range(NMAX):
+    for j in range(P.shape[1]):
         M[2, j] = (
             p20 * P[0, j]
             + p21 * P[1, j]
@@ -150,26 +149,26 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         d20, d21, d22 = -C[6] * dt, -C[7] * dt, -C[8] * dt
         # M[3:6] = velocity rows of Phi P = P[v] + CF M[0:3] (+ Cdt P[ba])
         if iba >= 0:
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 M[3, j] = (
                     P[iv, j]
                     + (f00 * M[0, j] + f01 * M[1, j] + f02 * M[2, j])
                     + (d00 * P[iba, j] + d01 * P[iba + 1, j] + d02 * P[iba + 2, j])
                 )
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 M[4, j] = (
                     P[iv + 1, j]
                     + (f10 * M[0, j] + f11 * M[1, j] + f12 * M[2, j])
                     + (d10 * P[iba, j] + d11 * P[iba + 1, j] + d12 * P[iba + 2, j])
                 )
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 M[5, j] = (
                     P[iv + 2, j]
                     + (f20 * M[0, j] + f21 * M[1, j] + f22 * M[2, j])
                     + (d20 * P[iba, j] + d21 * P[iba + 1, j] + d22 * P[iba + 2, j])
                 )
         else:
-            for j in range(NMAX):
+            for j in range(P.shape[1]):
                 m0, m1, m2 = M[0, j], M[1, j], M[2, j]
                 M[3, j] = P[iv, j] + (f00 * m0 + f01 * m1 + f02 * m2)
                 M[4, j] = P[iv + 1, j] + (f10 * m0 + f11 * m1 + f12 * m2)
@@ -245,7 +244,7 @@ def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
     # M[0:4] = J P[0:4, :]
     for r in range(4):
         j0, j1, j2, j3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
-        for j in range(NMAX):
+        for j in range(P.shape[1]):
             M[r, j] = j0 * P[0, j] + j1 * P[1, j] + j2 * P[2, j] + j3 * P[3, j]
     for r in range(4):
         for c in range(4):
@@ -314,7 +313,7 @@ def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
     for r in range(4):
         f0, f1, f2, f3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
         g0, g1, g2 = Fqb[r, 0], Fqb[r, 1], Fqb[r, 2]
-        for j in range(NMAX):
+        for j in range(P.shape[1]):
             M[r, j] = (
                 f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
                 + g0 * P[ib, j] + g1 * P[ib + 1, j] + g2 * P[ib + 2, j]
