@@ -119,3 +119,31 @@ def test_quadrotor_without_air_data_is_refused() -> None:
 def test_estimates_are_labelled_with_the_registry_spec() -> None:
     spec = "mekf:mag_mode=heading"
     assert make_estimator(spec).run(golden.case_flight("nan")).filter == spec
+
+
+_BRIDGE = """
+import sys, numpy as np
+from windahrs.filters.registry import make_estimator
+from windahrs.sim.scenario import make_scenario, simulate
+f = simulate(make_scenario("fixedwing", wind=8.0, duration=1.0), np.random.default_rng(4))
+out = {k: make_estimator(k).run(f).q_nb for k in ("mekf", "ins-wind", "ekf10", "ins-drag")}
+np.savez(sys.argv[1], **out)
+"""
+
+
+def test_the_source_without_jit_gives_the_compiled_answers(tmp_path: Path) -> None:
+    """The readable reference is the same source run by the Python interpreter
+    (NUMBA_DISABLE_JIT=1): a bridge run on a 1 s flight equals the compiled run."""
+    import os
+    import subprocess
+    import sys
+
+    runs = {}
+    for jit in ("0", "1"):
+        out = tmp_path / f"jit{jit}.npz"
+        env = {**os.environ, "NUMBA_DISABLE_JIT": jit}
+        subprocess.run([sys.executable, "-c", _BRIDGE, str(out)], check=True, env=env, timeout=300)
+        with np.load(out) as z:
+            runs[jit] = {k: z[k] for k in z.files}
+    for k, q in runs["0"].items():
+        np.testing.assert_allclose(runs["1"][k], q, rtol=0, atol=1e-9, err_msg=k)
