@@ -104,6 +104,26 @@ def _inverse_small(S, Si, m):
     Si[2, 0], Si[2, 1], Si[2, 2] = C * r, (b * g - a * h) * r, (a * e - b * d) * r
 
 
+@njit(inline="always", **_JIT)
+def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
+    """Si = S^-1, the NIS ``nu^T S^-1 nu`` and the gate (each component within gate sigmas,
+    ``nu_k^2 <= gate^2 S_kk``: PX4 EKF2's test ratio), logged; returns whether accepted.
+    Shared by the EKF update below and the unscented update of [usque]."""
+    _inverse_small(S, Si, m)
+    nis = 0.0
+    bad = 0
+    for k in range(m):
+        v = 0.0
+        for l in range(m):
+            v += Si[k, l] * nu[l]
+        nis += nu[k] * v
+        if not (nu[k] * nu[k] <= gate2 * S[k, k]):
+            bad += 1
+    accepted = bad == 0
+    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
+    return accepted
+
+
 @njit(**_JIT)
 def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     """EskfStreamer._fuse / Ekf7Streamer._fuse: NIS, gate, log, Joseph update, injection.
@@ -171,20 +191,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 c = cols[ci]
                 s += Hm[k, c] * U[l, c]
             S[k, l] = s + R[k, l]
-    _inverse_small(S, Si, m)
-    # NIS, gate (each component within gate sigmas), log
-    nis = 0.0
-    bad = 0
-    for k in range(m):
-        v = 0.0
-        for l in range(m):
-            v += Si[k, l] * nu[l]
-        nis += nu[k] * v
-        if not (nu[k] * nu[k] <= gate2 * S[k, k]):
-            bad += 1
-    accepted = bad == 0
-    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
-    if not accepted:
+    if not _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
         return False
     # K^T = S^-1 H P; Joseph form expanded: P - K U^T - U K^T + K S K^T = P + K G^T + G K^T
     # with G = K S / 2 - U^T. Each entry adds K_ik G_jk + G_ik K_jk in the same order as

@@ -431,6 +431,22 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
             out_cov[k, i - 1, j - 1] = P[i, j]
 
 
+@njit(inline="always", **_JIT)
+def sample_ok(kind, row):
+    """Whether an event's sample can be used: an IMU sample with 6 finite values, a
+    magnetometer or GNSS sample with 3, an air sample with a finite airspeed (NaN vanes
+    mean no vanes). The event loops skip the others and count them per stream (K_SKIP +
+    kind: the EVENT_* codes are the skip counters' order)."""
+    if kind == EVENT_IMU:
+        for a in range(6):
+            if not math.isfinite(row[a]):
+                return False
+        return True
+    if kind == EVENT_AIR:
+        return math.isfinite(row[0])
+    return math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2])
+
+
 @njit(**_JIT)
 def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec):
     """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6)),
@@ -449,29 +465,16 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec)
         row = vals[i]
         if kind == EVENT_IMU:
             k += 1
-            ok = True
-            for a in range(6):
-                if not math.isfinite(row[a]):
-                    ok = False
-            if ok:
-                step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
-            else:
-                flags[K_SKIP] += 1
+        if not sample_ok(kind, row):
+            flags[K_SKIP + kind] += 1
+        elif kind == EVENT_IMU:
+            step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
         elif kind == EVENT_MAG:
-            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
-                step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
-            else:
-                flags[K_SKIP + 1] += 1
+            step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
         elif kind == EVENT_GNSS:
-            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
-                step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
-            else:
-                flags[K_SKIP + 2] += 1
+            step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
         elif kind == EVENT_AIR:
-            if math.isfinite(row[0]):
-                step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, row[0], row[1], row[2])
-            else:
-                flags[K_SKIP + 3] += 1
+            step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, row[0], row[1], row[2])
         # IMU sample k gets the state after the last event before the next IMU sample
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)

@@ -42,7 +42,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.aid.mag import _set_mag_reference
-from windahrs.core.kalman import _inverse_small, _log
+from windahrs.core.kalman import _gate, _log
 from windahrs.core.kernel import (
     _STREAMS,
     CompiledStreamer,
@@ -54,6 +54,7 @@ from windahrs.core.kernel import (
     layout_for,
     make_state,
     record,
+    sample_ok,
 )
 from windahrs.core.layout import (
     _JIT,
@@ -335,19 +336,7 @@ def _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, gate2, angle):
             for i in range(1, _NP):
                 s += _WI * S[i, r] * Y[i, k]
             Pxy[r, k] = s
-    _inverse_small(Pyy, Si, m)
-    nis = 0.0
-    bad = 0
-    for k in range(m):
-        v = 0.0
-        for l in range(m):
-            v += Si[k, l] * nu[l]
-        nis += nu[k] * v
-        if not (nu[k] * nu[k] <= gate2 * Pyy[k, k]):
-            bad += 1
-    accepted = bad == 0
-    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
-    if not accepted:
+    if not _gate(cfg, flags, inn, acc, nu, Pyy, Si, sensor, t, m, gate2):
         return False
     # K = Pxy Pyy^-1, dx = K nu, P -= K Pyy K^T (then symmetrised)
     for r in range(_N):
@@ -465,19 +454,12 @@ def run_usque(st, t_ev, kinds, vals, out_q, out_bg, out_vw, out_cov, rec):
         row = vals[i]
         if kind == EVENT_IMU:
             k += 1
-            ok = True
-            for a in range(6):
-                if not math.isfinite(row[a]):
-                    ok = False
-            if ok:
-                _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row)
-            else:
-                flags[K_SKIP] += 1
+        if not sample_ok(kind, row):
+            flags[K_SKIP + kind] += 1
+        elif kind == EVENT_IMU:
+            _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row)
         elif kind == EVENT_MAG:
-            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
-                _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row)
-            else:
-                flags[K_SKIP + 1] += 1
+            _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row)
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, x, flags, P, work, k, out_q, out_bg, out_vw, out_vw, out_cov)
 
