@@ -87,6 +87,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
     from windahrs.experiments.montecarlo import run_wind_experiment
+    from windahrs.metrics import WIND_FROM_S
 
     specs = [s.strip() for s in args.filters.split(",") if s.strip()]
     if args.runs < 1:
@@ -107,14 +108,27 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         f"{args.vehicle}, W20 = {args.wind} m/s, {args.duration} s, {args.runs} runs (seeds {args.seed}..): "
         "RMSE in deg against truth; from sample 50 | second half"
     )
+    width = max(36, *(len(r.filter) + 2 for r in rows))
     axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
-    print(f"{'filter':<36}{axes}{axes}{'tilt':>8}{'total':>8}{'s/run':>8}")
+    winds = any(r.wind_rmse_h_ms is not None for r in rows)
+    wind_head = f" |{'wind m/s':>9}{'dir deg':>8}{'max':>7}" if winds else ""
+    print(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}{'s/run':>8}{wind_head}")
     for r in rows:
         a, b = r.rmse_from50_deg, r.rmse_steady_deg
+        wind = ""
+        if winds:
+            wind = " |" + (
+                f"{r.wind_rmse_h_ms:9.3f}{r.wind_direction_deg:8.2f}{r.wind_direction_max_deg:7.2f}"
+                if r.wind_rmse_h_ms is not None and r.wind_direction_deg is not None
+                and r.wind_direction_max_deg is not None
+                else f"{'-':>9}{'-':>8}{'-':>7}"
+            )
         print(
-            f"{r.filter:<36}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
-            f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}{r.seconds:8.2f}"
+            f"{r.filter:<{width}}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
+            f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}{r.seconds:8.2f}{wind}"
         )
+    if winds:
+        print(f"wind: horizontal RMSE and direction error of the mean wind from {WIND_FROM_S:g} s on, RMS over runs")
     return 0
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from windahrs.filters.registry import make_estimator
-from windahrs.metrics import Score, score
+from windahrs.metrics import WIND_FROM_S, Score, WindErrors, score, wind_errors
 from windahrs.sim.scenario import make_scenario, simulate
 
 __all__ = ["ExperimentRow", "run_wind_experiment"]
@@ -22,7 +22,10 @@ __all__ = ["ExperimentRow", "run_wind_experiment"]
 @dataclass(frozen=True)
 class ExperimentRow:
     """One estimator's result over the runs: RMSE in degrees, from sample 50 and over the
-    second half, per axis; tilt and total from sample 50."""
+    second half, per axis; tilt and total from sample 50; for an estimator with wind
+    states, the horizontal wind RMSE m/s and the direction error of the mean wind, deg,
+    from :data:`~windahrs.metrics.WIND_FROM_S` on (:func:`~windahrs.metrics.wind_errors`;
+    RMS over runs, and the largest direction error of a run), else None."""
 
     filter: str
     runs: int
@@ -31,6 +34,9 @@ class ExperimentRow:
     rmse_tilt_deg: float
     rmse_total_deg: float
     seconds: float
+    wind_rmse_h_ms: float | None = None
+    wind_direction_deg: float | None = None
+    wind_direction_max_deg: float | None = None
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -41,6 +47,9 @@ class ExperimentRow:
             "rmse_tilt_deg": self.rmse_tilt_deg,
             "rmse_total_deg": self.rmse_total_deg,
             "seconds": self.seconds,
+            "wind_rmse_h_ms": self.wind_rmse_h_ms,
+            "wind_direction_deg": self.wind_direction_deg,
+            "wind_direction_max_deg": self.wind_direction_max_deg,
         }
 
 
@@ -69,6 +78,7 @@ def run_wind_experiment(
     estimators = [make_estimator(s) for s in specs]
     scenario = make_scenario(vehicle, wind=w20, duration=duration, altitude=altitude)
     scores: dict[str, list[Score]] = {s: [] for s in specs}
+    winds: dict[str, list[WindErrors]] = {s: [] for s in specs}
     seconds = dict.fromkeys(specs, 0.0)
     import time
 
@@ -80,12 +90,14 @@ def run_wind_experiment(
             result = est.run(flight)
             seconds[spec] += time.perf_counter() - t0
             scores[spec].append(score(result, flight))
+            if result.wind_n is not None and duration > WIND_FROM_S:
+                winds[spec].append(wind_errors(result, flight))
             done += 1
             if progress is not None:
                 progress(done, total)
     rows = []
     for spec in specs:
-        sc = scores[spec]
+        sc, wd = scores[spec], winds[spec]
         rows.append(
             ExperimentRow(
                 filter=spec,
@@ -95,6 +107,9 @@ def run_wind_experiment(
                 rmse_tilt_deg=_rms([s.rmse_tilt_deg for s in sc]),
                 rmse_total_deg=_rms([s.rmse_total_deg for s in sc]),
                 seconds=seconds[spec] / runs,
+                wind_rmse_h_ms=_rms([w.rmse_h for w in wd]) if wd else None,
+                wind_direction_deg=_rms([w.direction_deg for w in wd]) if wd else None,
+                wind_direction_max_deg=max(abs(w.direction_deg) for w in wd) if wd else None,
             )
         )
     return rows
