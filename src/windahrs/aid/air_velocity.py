@@ -32,7 +32,7 @@ from windahrs.core.quat import (
 
 @njit(**_JIT)
 def _air_rows(cfg, x, work, sup, use_state_v, g0, g1, g2, row):
-    """observations._air_b: returns y = C_bn (v - wind) (v: the velocity state or the
+    """Returns y = C_bn (v - wind) (v: the velocity state or the
     last GNSS velocity) and writes row ``row`` of H as g^T J, J = d y / d(error) =
     [[y]x, -C_bn (wind), C_bn (velocity)]; sets the support; returns (y, support size)."""
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])

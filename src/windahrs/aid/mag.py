@@ -78,7 +78,7 @@ BIAS_PARAMS = ("init_mag_bias", "mag_bias_noise")
 
 @njit(**_JIT)
 def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
-    """eskf.mag_reference: the site's field, or the sample's with its horizontal part north."""
+    """The reference field m_n: the site's field, or the sample's with its horizontal part north."""
     if cfg[C_SITE_MAG] == 1:
         for a in range(3):
             x[X_MAGN + a] = prm[R_SITE_MAG + a]
@@ -96,7 +96,7 @@ def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
 
 @njit(**_JIT)
 def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
-    """EskfStreamer._mag_disturbed: the field to be fused fails the norm or dip check."""
+    """The disturbance checks: the field to be fused fails the norm or dip check."""
     if cfg[C_IBM] >= 0:
         mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
     r_norm = math.sqrt(rx * rx + ry * ry + rz * rz)

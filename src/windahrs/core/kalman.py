@@ -79,7 +79,7 @@ def _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted):
 
 @njit(**_JIT)
 def _lowpass_gain(dt, tau):
-    """eskf.lowpass_gain: weight of a new sample in a first-order low-pass after dt."""
+    """Weight of a new sample in a first-order low-pass after dt."""
     return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
 
 
@@ -126,7 +126,7 @@ def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
 
 @njit(**_JIT)
 def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
-    """EskfStreamer._fuse / Ekf7Streamer._fuse: NIS, gate, log, Joseph update, injection.
+    """The Kalman update of the error-state and additive EKFs: NIS, gate, log, Joseph update, injection.
 
     The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m], H = work[W_H:W_H+m]
     on the error-state columns sup[0, :nsup] (the attitude columns 0..2 always written);

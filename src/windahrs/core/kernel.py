@@ -193,7 +193,9 @@ from windahrs.models.error_state import Layout
 
 @njit(**_JIT)
 def _try_init(cfg, prm, x, flags, P, work):
-    """EskfStreamer._try_init (and Ekf7Streamer's covariance on the quaternion)."""
+    """Initialise once every sample it waits for is in: attitude by TRIAD (or the given
+    initial state), the covariance (on the quaternion for the additive form), the field
+    reference, the low-pass means."""
     if flags[S_INIT] == 1 or flags[S_FLAST] == 0:
         return
     if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:
@@ -261,7 +263,7 @@ def _try_init(cfg, prm, x, flags, P, work):
 
 @njit(**_JIT)
 def _rotate_lowpass(x, flags, wx, wy, wz, dt):
-    """EskfStreamer._rotate_lowpass: the low-passed vectors into the new body frame,
+    """The low-passed vectors into the new body frame,
     v <- C(Exp(w dt))^T v (w bias-corrected)."""
     e = _qexp(wx * dt, wy * dt, wz * dt)
     c = _dcm9(e[0], e[1], e[2], e[3])
@@ -365,7 +367,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
 
 @njit(inline="always", **_JIT)
 def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
-    """The current state (EskfStreamer.state) into row k of the outputs: q (N, 4), bias
+    """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
     covariance (N, d, d) (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I))."""
     d = cfg[C_DIM]
@@ -406,7 +408,7 @@ def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
 
 @njit(**_JIT)
 def _record_tangent_cov(cfg, x, P, work, k, out_cov):
-    """Ekf7Streamer._tangent_cov into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)."""
+    """The additive filters' tangent-space covariance into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)."""
     Xi = work[W_M + 4 : W_M + 8]
     _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
     n = cfg[C_N]
@@ -449,7 +451,7 @@ def sample_ok(kind, row):
 
 @njit(**_JIT)
 def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec):
-    """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6)),
+    """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,), kinds (E,), vals (E, 6)),
     skip and count NaN samples, and (rec) record for IMU sample k the state after every
     event with t <= t_imu[k] (before the next IMU sample).
 
@@ -603,7 +605,7 @@ def make_state(
     prm[R_GATE2_MAG] = p.gate_mag**2
     prm[R_GATE2_GNSS] = p.gate_gnss**2
     prm[R_GATE2_AIR] = p.gate_air**2
-    # EskfStreamer._try_init's defaults
+    # initial spreads: the given initial state's, else the parameters'
     prm[R_P0_ATT] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
     prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
     prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2

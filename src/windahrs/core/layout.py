@@ -81,7 +81,7 @@ C_OFF = 22  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
-# prm: parameters (float64), fixed for a run; squared in Python as the reference does.
+# prm: parameters (float64), fixed for a run; noises squared once in make_state.
 R_SG2 = 0  # gyro noise density^2
 R_SB2 = 1  # gyro bias noise^2
 R_SA2 = 2  # accel noise^2

@@ -61,7 +61,7 @@ WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind"
 
 @njit(**_JIT_FMA)
 def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
-    """error_state.predict, using Phi's block structure: only the attitude (and velocity)
+    """The error-state prediction (SPEC 2.4, 2.5), using Phi's block structure: only the attitude (and velocity)
     rows and columns of P change before Q is added (layout: att 0..2, v 3..5). The 3x3
     blocks of Phi live in local scalars."""
     n, ib, iv, iw, iba = cfg[C_N], cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
@@ -73,7 +73,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     # attitude_transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
     # W = [w]x; W^2 = w w^T - |w|^2 I entry by entry as W @ W evaluates it.
     a = math.sqrt(wx * wx + wy * wy + wz * wz)
-    if a * dt < 1e-6:  # series, as the reference
+    if a * dt < 1e-6:  # the series (the closed form loses precision)
         c11, c12 = -dt, 0.5 * dt**2
         c21, c22 = 0.5 * dt**2, -(dt**3) / 6.0
     else:
@@ -229,7 +229,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
 
 @njit(**_JIT)
 def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
-    """Ekf7Streamer._normalise: q <- q/|q| (w >= 0), P <- J P J^T, symmetrised."""
+    """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T, symmetrised."""
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     n = cfg[C_N]
     nq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
@@ -267,7 +267,7 @@ def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
 
 @njit(**_JIT_FMA)
 def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
-    """Ekf7Streamer._predict: F = [[Phi4, -(dt/2) Xi(q_k) J_r], [0, I]], Q of SPEC 2.3."""
+    """The additive prediction of [ekf7], [ekf10]: F = [[Phi4, -(dt/2) Xi(q_k) J_r], [0, I]], Q of SPEC 2.3."""
     M, X, Xi = work[W_M : W_M + 4], work[W_X : W_X + 8], work[W_M + 4 : W_M + 8]
     Jr, K = work[W_T : W_T + 3, 0:3], work[W_T + 3 : W_T + 6, 0:3]
     Fqb = work[W_T + 6 : W_T + 10, 0:3]  # 4x3 (borrows a row of the next matrix)

@@ -85,7 +85,7 @@ def _euler(q0, q1, q2, q3):
 
 @njit(**_JIT)
 def _triad(fx, fy, fz, use_mag, mx, my, mz, use_ref, rx, ry, rz):
-    """base.triad: roll and pitch from the specific force, yaw from the magnetometer."""
+    """filters.base.triad on scalars: roll and pitch from the specific force, yaw from the magnetometer."""
     nf = math.sqrt(fx * fx + fy * fy + fz * fz)
     ux, uy, uz = fx / nf, fy / nf, fz / nf
     roll = math.atan2(-uy, -uz)
@@ -116,7 +116,7 @@ def _wrap_pi(x):
 
 @njit(**_JIT)
 def _xi_into(q0, q1, q2, q3, X):
-    """additive.Xi(q) (4x3) into X[:4, :3]."""
+    """Xi(q) (4x3, SPEC 2.3: q_dot = Xi(q) w / 2) into X[:4, :3]."""
     X[0, 0], X[0, 1], X[0, 2] = -q1, -q2, -q3
     X[1, 0], X[1, 1], X[1, 2] = q0, -q3, q2
     X[2, 0], X[2, 1], X[2, 2] = q3, q0, -q1
