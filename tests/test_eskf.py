@@ -10,15 +10,17 @@ import numpy as np
 import pytest
 
 from trajectories import flight_in_place
+from windahrs.core import layout as K
+from windahrs.core.linearize import Linearization
 from windahrs.filters.base import InitialState, MissingSensorError, merge_events
 from windahrs.filters.ekf7 import Ekf7, Ekf10
 from windahrs.filters.eskf import InsWind, Mekf, MekfAir
 from windahrs.filters.params import EskfParams, load_params, matched_to
 from windahrs.filters.registry import make_estimator
+from windahrs.flight import Site
 from windahrs.metrics import chi2_band, nees_attitude
-from windahrs.models import observations as obs
 from windahrs.models.additive import Xi, vector_obs_jacobian
-from windahrs.models.error_state import Layout, NominalState, ProcessNoise, predict
+from windahrs.models.error_state import Layout
 from windahrs.rotation import quat_angle, quat_conj, quat_exp, quat_log, quat_mul
 from windahrs.sim.atmosphere import WindConfig
 from windahrs.sim.fixedwing import FixedWingScenario
@@ -26,117 +28,150 @@ from windahrs.sim.scenario import make_scenario, simulate
 from windahrs.sim.sensors import AccelModel, MagModel, SensorSuite
 
 FULL = Layout(("att", "v", "bg", "wind", "ba", "bm"))
+SITE = Site(mag_n=np.array([20e-6, -3e-6, 45e-6]))
+#: The nominal state's blocks as keywords of Linearization.set_state (q_nb apart).
+STATE_BLOCKS = (("v", "v_n"), ("bg", "bg"), ("wind", "wind_n"), ("ba", "ba"), ("bm", "bm"))
 
 
-def random_state(rng: np.random.Generator) -> NominalState:
-    q = quat_exp(rng.normal(size=3))
-    return NominalState(
-        q_nb=q,
-        bg=rng.normal(size=3) * 0.01,
-        v_n=rng.normal(size=3) * 10 + [15, 0, 0],
-        wind_n=rng.normal(size=3) * 3,
-        ba=rng.normal(size=3) * 0.05,
-        bm=rng.normal(size=3) * 1e-6,
-    )
+def random_state(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    return {
+        "q_nb": quat_exp(rng.normal(size=3)),
+        "bg": rng.normal(size=3) * 0.01,
+        "v_n": rng.normal(size=3) * 10 + [15, 0, 0],
+        "wind_n": rng.normal(size=3) * 3,
+        "ba": rng.normal(size=3) * 0.05,
+        "bm": rng.normal(size=3) * 1e-6,
+    }
 
 
-def boxminus(layout: Layout, a: NominalState, b: NominalState) -> np.ndarray:
+def inject(layout: Layout, s: dict[str, np.ndarray], dx: np.ndarray) -> dict[str, np.ndarray]:
+    """The state perturbed by the error dx: ``q Exp(dtheta)``, additive elsewhere."""
+    out = dict(s, q_nb=quat_mul(s["q_nb"], quat_exp(dx[layout.sl("att")])))
+    for block, key in STATE_BLOCKS:
+        if layout.has(block):
+            out[key] = s[key] + dx[layout.sl(block)]
+    return out
+
+
+def boxminus(layout: Layout, a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> np.ndarray:
     """Error-state difference a - b in the layout's coordinates."""
     dx = np.zeros(layout.dim)
-    dx[layout.sl("att")] = quat_log(quat_mul(quat_conj(b.q_nb), a.q_nb))
-    for name, attr in (("bg", "bg"), ("v", "v_n"), ("wind", "wind_n"), ("ba", "ba"), ("bm", "bm")):
-        if layout.has(name):
-            dx[layout.sl(name)] = getattr(a, attr) - getattr(b, attr)
+    dx[layout.sl("att")] = quat_log(quat_mul(quat_conj(b["q_nb"]), a["q_nb"]))
+    for block, key in STATE_BLOCKS:
+        if layout.has(block):
+            dx[layout.sl(block)] = a[key] - b[key]
     return dx
 
 
-def numeric_jacobian(fn, layout: Layout, x: NominalState, eps: float = 1e-6) -> np.ndarray:
-    cols = []
-    for i in range(layout.dim):
-        e = np.zeros(layout.dim)
-        e[i] = eps
-        cols.append((fn(x.inject(layout, e)) - fn(x.inject(layout, -e))) / (2 * eps))
-    return np.column_stack(cols)
+def nominal(lin: Linearization) -> dict[str, np.ndarray]:
+    """The nominal state of the linearisation (after its prediction)."""
+    x = lin.st.x
+    idx = {"q_nb": (K.X_Q, 4), "v_n": (K.X_V, 3), "bg": (K.X_BG, 3), "wind_n": (K.X_W, 3),
+           "ba": (K.X_BA, 3), "bm": (K.X_BM, 3)}  # fmt: skip
+    return {key: x[i : i + m].copy() for key, (i, m) in idx.items()}
 
 
-def assert_jacobian(H: np.ndarray, H_fd: np.ndarray, value: np.ndarray) -> None:
-    """Relative 1e-6, with a floor at the finite differences' rounding level
-    (eps * |h| / step) for Jacobians that are exactly zero."""
-    scale = np.abs(H_fd).max()
-    floor = 1e-8 * float(np.abs(value).max())
-    assert np.abs(H - H_fd).max() <= 1e-6 * scale + floor, (np.abs(H - H_fd).max(), scale)
+LAYOUTS = [FULL, Layout(("att", "bg")), Layout(("att", "bg", "ba", "bm")), Layout(("att", "bg", "wind")),
+           Layout(("att", "v", "bg", "ba"))]  # fmt: skip
 
 
-@pytest.mark.parametrize("layout", [FULL, Layout(("att", "bg")), Layout(("att", "bg", "wind"))])
-def test_measurement_jacobians_match_finite_differences(layout: Layout) -> None:
+@pytest.mark.parametrize("layout", LAYOUTS, ids=lambda L: "-".join(L.blocks))
+def test_linearization_jacobians_match_finite_differences(layout: Layout) -> None:
+    """core.linearize reads each shipped aid source's H on any layout (the aid sources
+    themselves: tests/test_aid_jacobians.py): H = -d nu / d(error) at a fixed sample, the
+    columns outside the aid's support exactly 0, R as the parameters give it."""
     rng = np.random.default_rng(1)
-    g = np.array([0.0, 0.0, 9.80665])
-    m = np.array([20e-6, -3e-6, 45e-6])
-    for _ in range(10):
+    params = EskfParams()
+    lin = Linearization(layout, params, SITE)
+    aids = {"gravity": lin.gravity, "mag": lin.mag}
+    if layout.has("v"):
+        aids["gnss"] = lin.gnss
+    if layout.has("wind"):
+        aids.update(air=lambda: lin.air_vector(15.0, 0.05, -0.03), tas=lambda: lin.tas(15.0), sideslip=lin.sideslip)
+    for _ in range(3):
         x = random_state(rng)
-        v_in = rng.normal(size=3) * 5 + [15, 0, 0]
-        models = {
-            "gravity": lambda s: obs.specific_force(layout, s, g, rng_a),
-            "mag": lambda s: obs.magnetometer(layout, s, m),
-            "vector": lambda s: obs.vector_body(layout, s, m),
-            "air": lambda s: obs.air_velocity(layout, s, v_in),
-            "tas": lambda s: obs.airspeed(layout, s, v_in),
-            "sideslip": lambda s: obs.sideslip(layout, s, v_in),
-            "heading": lambda s: obs.heading(layout, s),
-        }
-        rng_a = rng.normal(size=3)
-        if layout.has("v"):
-            models["gnss"] = lambda s: obs.gnss_velocity(layout, s)
-        if not layout.has("wind") and not layout.has("v"):
-            x = NominalState(q_nb=x.q_nb, bg=x.bg)
-        if not layout.has("ba"):
-            x = NominalState(q_nb=x.q_nb, bg=x.bg, v_n=x.v_n if layout.has("v") else None, wind_n=x.wind_n)
-        for name, fn in models.items():
-            value, H = fn(x)
-            H_fd = numeric_jacobian(lambda s, fn=fn: fn(s)[0], layout, x)
-            if name == "heading":  # wrap-safe: the yaw difference is small here
-                H_fd = (H_fd + np.pi / 1e-6) % (2 * np.pi / 1e-6) - np.pi / 1e-6
-            assert_jacobian(H, H_fd, value)
+        for name, aid in aids.items():
+            lin.set_state(**x)
+            H, R = aid()
+            m = H.shape[0]
 
+            def nu(s: dict[str, np.ndarray], aid=aid, m=m) -> np.ndarray:
+                lin.set_state(**s)
+                aid()
+                return lin.st.work[K.W_NU, :m].copy()
 
-def test_airspeed_carries_no_attitude_information() -> None:
-    x = random_state(np.random.default_rng(2))
-    _, H = obs.airspeed(FULL, x)
-    assert np.all(H[:, FULL.sl("att")] == 0)
+            cols = []
+            for i in range(layout.dim):
+                e = np.zeros(layout.dim)
+                e[i] = 1e-6
+                cols.append(-(nu(inject(layout, x, e)) - nu(inject(layout, x, -e))) / 2e-6)
+            H_fd = np.column_stack(cols)
+            scale = np.abs(H_fd).max()
+            assert np.abs(H - H_fd).max() <= 1e-6 * scale, (name, np.abs(H - H_fd).max(), scale)
+            assert np.all(H[np.abs(H_fd) == 0] == 0), name
+            var = {"gravity": params.accel_sigma, "mag": params.mag_sigma, "gnss": params.gnss_sigma,
+                   "tas": params.tas_sigma, "sideslip": params.sideslip_sigma}.get(name)  # fmt: skip
+            if var is not None:
+                assert np.array_equal(R, var**2 * np.eye(m)), name
+    if layout.has("v"):
+        lin.set_state(**x)
+        assert np.array_equal(lin.gnss()[0][:, layout.sl("v")], np.eye(3))
+    if layout.has("wind"):
+        lin.set_state(**x)
+        assert np.all(lin.tas(15.0)[0][:, :3] == 0)  # airspeed carries no attitude information
 
 
 def test_process_transition_matches_finite_differences() -> None:
+    """The shipped prediction (core.predict._predict_es): Phi P Phi^T (its prediction of P
+    less that of 0, Q) against Phi from central differences of the nominal propagation."""
     rng = np.random.default_rng(3)
-    noise = ProcessNoise(
-        gyro=1e-4, gyro_bias=1e-5, accel=1e-3, wind_h=0.1, wind_v=0.1, accel_bias=1e-4, mag_bias=1e-8
-    )
-    g = np.array([0.0, 0.0, 9.80665])
+    params = EskfParams(gyro_noise=1e-4, gyro_bias_noise=1e-5, accel_noise=1e-3, wind_noise=0.1,
+                        wind_noise_vertical=0.1, accel_bias_noise=1e-4, mag_bias_noise=1e-8)  # fmt: skip
+    lin = Linearization(FULL, params, SITE)
     for dt, w_scale in ((0.005, 1.0), (0.05, 3.0), (0.005, 1e-9)):
         x = random_state(rng)
         w, f = rng.normal(size=3) * w_scale, rng.normal(size=3) * 3 + [0, 0, -9.8]
         P = np.eye(FULL.dim)
-        _, P1 = predict(FULL, x, np.zeros_like(P), w, f, dt, noise, g)
-        Q = P1  # with P = 0 the prediction is Q alone
-        _, P2 = predict(FULL, x, P, w, f, dt, noise, g)
-        Phi_PPhiT = P2 - Q
-        x1, _ = predict(FULL, x, P, w, f, dt, noise, g)
+        lin.set_state(**x)
+        Q = lin.predict(np.zeros_like(P), w, f, dt)  # with P = 0 the prediction is Q alone
+        lin.set_state(**x)
+        Phi_PPhiT = lin.predict(P, w, f, dt) - Q
+        x1 = nominal(lin)
 
-        def step(s: NominalState) -> np.ndarray:
-            return boxminus(FULL, predict(FULL, s, P, w, f, dt, noise, g)[0], x1)
+        def step(s: dict[str, np.ndarray]) -> np.ndarray:
+            lin.set_state(**s)
+            lin.predict(P, w, f, dt)
+            return boxminus(FULL, nominal(lin), x1)
 
-        Phi_fd = numeric_jacobian(step, FULL, x)
+        eps = 1e-6
+        cols = []
+        for i in range(FULL.dim):
+            e = np.zeros(FULL.dim)
+            e[i] = eps
+            cols.append((step(inject(FULL, x, e)) - step(inject(FULL, x, -e))) / (2 * eps))
+        Phi_fd = np.column_stack(cols)
         assert np.allclose(Phi_fd @ Phi_fd.T, Phi_PPhiT, atol=1e-6 * np.abs(Phi_PPhiT).max())
+        # Linearization.transition's Phi is the same
+        lin.set_state(**x)
+        Phi, Q2 = lin.transition(w, f, dt)
+        assert np.array_equal(Q2, Q)
+        assert np.allclose(Phi, Phi_fd, atol=1e-6 * np.abs(Phi_fd).max())
 
 
 def test_additive_jacobian_equals_tangent_form() -> None:
+    """The additive filters' vector Jacobian (models.additive) projected on the unit sphere
+    is the error-state one (aid.mag's H_att = [C_bn r]x) through ``dq = Xi(q) dtheta / 2``."""
     rng = np.random.default_rng(4)
+    layout = Layout(("att", "bg"))
     for _ in range(10):
         q = quat_exp(rng.normal(size=3))
         r = rng.normal(size=3)
-        x = NominalState(q_nb=q, bg=np.zeros(3))
-        _, H = obs.vector_body(Layout(("att", "bg")), x, r)
+        r *= 3e-5 / np.linalg.norm(r)  # a field in tesla (aid.mag's reference)
+        lin = Linearization(layout, EskfParams(), Site(mag_n=r))
+        lin.set_state(q)
+        H = lin.mag()[0]
         proj = np.eye(4) - np.outer(q, q)
-        assert np.allclose(vector_obs_jacobian(q, r) @ proj, 2 * H[:, :3] @ Xi(q).T, atol=1e-12)
+        assert np.allclose(vector_obs_jacobian(q, r) @ proj, 2 * H[:, :3] @ Xi(q).T, atol=1e-12 * np.abs(r).max())
 
 
 # --- zero noise -----------------------------------------------------------------------

@@ -9,12 +9,11 @@ import pytest
 from scipy.linalg import block_diag
 
 from trajectories import flight_in_place
+from windahrs.core.linearize import Linearization
 from windahrs.filters.base import InitialState
 from windahrs.filters.eskf import Mekf
-from windahrs.filters.params import matched_to
+from windahrs.filters.params import EskfParams, matched_to
 from windahrs.flight import Flight, Truth
-from windahrs.models import observations as obs
-from windahrs.models.error_state import Layout, NominalState, ProcessNoise, predict
 from windahrs.pcrb import (
     PcrbNoise,
     efficiency_ratio,
@@ -118,21 +117,14 @@ def test_recursion_rejects_mismatched_inputs() -> None:
 # --- the flight bound is that recursion on the filters' Jacobians -----------------------
 
 
-def transition(layout: Layout, x: NominalState, w: np.ndarray, f: np.ndarray, dt: float):
-    """(Phi, Q) of ``predict`` at x: Q with P = 0; the columns of Phi from Phi e_i e_i^T Phi^T
-    without noise (sign: the diagonal of Phi is positive for |w dt| < pi/2)."""
-    n = layout.dim
-    g = np.array([0.0, 0.0, 9.80665])
+def white_model(fl: Flight) -> Linearization:
+    """The shipped [att, bg] models with the white-noise suite's process noise (the
+    Jacobians; R is given explicitly below)."""
     s = WHITE
-    noise = ProcessNoise(gyro=s.gyro.noise_density, gyro_bias=s.gyro.bias_rw, accel=s.accel.noise_density)
-    Q = predict(layout, x, np.zeros((n, n)), w, f, dt, noise, g)[1]
-    Phi = np.empty((n, n))
-    for i in range(n):
-        E = np.zeros((n, n))
-        E[i, i] = 1.0
-        M = predict(layout, x, E, w, f, dt, ProcessNoise(gyro=0.0, gyro_bias=0.0), g)[1]
-        Phi[:, i] = M[:, i] / np.sqrt(M[i, i])
-    return Phi, Q
+    params = EskfParams(
+        gyro_noise=s.gyro.noise_density, gyro_bias_noise=s.gyro.bias_rw, accel_noise=s.accel.noise_density
+    )
+    return Linearization(pcrb_layout("gravity"), params, fl.site)
 
 
 def test_flight_bound_is_the_recursion_on_the_models_jacobians() -> None:
@@ -142,21 +134,20 @@ def test_flight_bound_is_the_recursion_on_the_models_jacobians() -> None:
     tr = fl.truth
     w = rates_from_attitude(tr.t, tr.q_nb)
     dt = 1.0 / WHITE.imu_rate
-    g = fl.site.gravity_n
+    lin = white_model(fl)
     Phis, Qs, Hs, Rs = [], [], [], []
     mag_k = set(np.searchsorted(fl.imu.t, fl.mag.t).tolist())
     for k in range(len(tr.t)):
-        x = NominalState(q_nb=tr.q_nb[k], bg=np.zeros(3))
         if k > 0:
-            Phi, Q = transition(
-                layout, NominalState(q_nb=tr.q_nb[k - 1], bg=np.zeros(3)), w[k], np.zeros(3), dt
-            )
+            lin.set_state(tr.q_nb[k - 1])  # (Phi, Q) of the step from the truth at k-1
+            Phi, Q = lin.transition(w[k], np.zeros(3), dt)
             Phis.append(Phi)
             Qs.append(Q)
-        H = [obs.specific_force(layout, x, g)[1]]
+        lin.set_state(tr.q_nb[k])
+        H = [lin.gravity()[0]]
         R = [WHITE.accel.noise_density**2 / dt * np.eye(3)]
         if k in mag_k:
-            H.append(obs.vector_body(layout, x, fl.site.mag_n)[1])
+            H.append(lin.mag()[0])
             R.append(WHITE.mag.noise**2 * np.eye(3))
         Hs.append(np.vstack(H))
         Rs.append(block_diag(*R))

@@ -14,15 +14,17 @@ by Cholesky), which never inverts P or Q, so a singular prior (a bias known exac
 rank-deficient Q is fine. :func:`pcrb_recursion` is that recursion on
 explicit per-step matrices; :func:`pcrb` builds the steps of a flight (SPEC 6.2).
 
-Error state: the tangent space of the error-state filters of
-:mod:`windahrs.models.error_state` (body-frame attitude error ``q_true = q_hat * Exp(dtheta)``,
-additive elsewhere), never the 4-d quaternion. Process and measurement Jacobians come
-from the filters' own model code (``predict``, :mod:`windahrs.models.observations`),
-evaluated at the truth: the true body rate ``Log(q[k-1]^* q[k]) / dt`` (what the
-simulator integrates), the true specific force ``C_bn (a_n - g_n)`` with ``a_n`` the
-difference quotient of ``truth.v_n`` over each step (the simulator's definition), and the
-true attitude, velocity and wind. Noise is the sensor's true noise (:class:`PcrbNoise`,
-usually :meth:`PcrbNoise.from_suite` of the simulator's SensorSuite).
+Error state: the tangent space of the error-state filters (body-frame attitude error
+``q_true = q_hat * Exp(dtheta)``, additive elsewhere; a
+:class:`~windahrs.models.error_state.Layout`), never the 4-d quaternion. The prediction
+``Phi P Phi^T + Q`` and the measurement Jacobians H and noise R are the shipped filters'
+own compiled functions (the error-state prediction and the aid sources, through
+:class:`windahrs.core.linearize.Linearization`), evaluated at the truth: the true body
+rate ``Log(q[k-1]^* q[k]) / dt`` (what the simulator integrates), the true specific force
+``C_bn (a_n - g_n)`` with ``a_n`` the difference quotient of ``truth.v_n`` over each step
+(the simulator's definition), and the true attitude, velocity and wind, the biases at 0.
+Noise is the sensor's true noise (:class:`PcrbNoise`, usually :meth:`PcrbNoise.from_suite`
+of the simulator's SensorSuite), given to those functions as :class:`EskfParams`.
 """
 
 from __future__ import annotations
@@ -37,9 +39,10 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from windahrs.core.linearize import Linearization
+from windahrs.filters.params import EskfParams
 from windahrs.flight import Flight, Truth
-from windahrs.models import observations as obs
-from windahrs.models.error_state import Layout, NominalState, ProcessNoise, predict
+from windahrs.models.error_state import Layout
 from windahrs.rotation import euler_from_quat, euler_rate_map, quat_rotate_inv
 from windahrs.sim.gust_response import rates_from_attitude
 from windahrs.sim.sensors import SensorSuite, air_data_from_velocity
@@ -284,6 +287,35 @@ def pcrb_layout(
     return Layout(tuple(blocks))
 
 
+def _model_params(noise: PcrbNoise, dt: float, wind_noise: float, wind_noise_vertical: float) -> EskfParams:
+    """The true noise as the shipped models' parameters: the process noise densities, the
+    accelerometer's per-sample sigma ``accel / sqrt(dt)`` (dt the median IMU step), the
+    other sensors' sigmas (1 for a sensor without noise: its stream is then not used,
+    :func:`_positive`), the 3-D magnetometer, no preprocessing."""
+
+    def sigma(v: float) -> float:
+        return v if v > 0 else 1.0
+
+    return EskfParams(
+        gyro_noise=noise.gyro,
+        gyro_bias_noise=noise.gyro_bias,
+        accel_noise=noise.accel,
+        accel_bias_noise=noise.accel_bias,
+        mag_bias_noise=noise.mag_bias,
+        wind_noise=wind_noise,
+        wind_noise_vertical=wind_noise_vertical,
+        wind_vertical=True,
+        gyro_scale_noise=0.0,
+        accel_sigma=sigma(noise.accel / math.sqrt(dt)),
+        mag_sigma=sigma(noise.mag),
+        gnss_sigma=sigma(noise.gnss),
+        tas_sigma=sigma(noise.tas),
+        vane_sigma=sigma(noise.vane),
+        mag_mode="3d",
+        accel_compensation="none",
+    )
+
+
 def _truth_motion(truth: Truth, gravity_n: F64) -> tuple[F64, F64 | None, F64]:
     """True body rate (N, 3), specific force (N, 3) or None, and acceleration (N, 3)."""
     t = truth.t
@@ -450,53 +482,54 @@ def pcrb(
         if not np.isfinite(P_init).all() or not np.allclose(P_init, P_init.T):
             raise ValueError("P0: expected a finite symmetric matrix")
 
+    # The shipped models with the true noise, linearised at the truth (biases 0).
+    _positive("gyro", noise.gyro, "gyroscope (the prediction)")
+    lin = Linearization(layout, _model_params(noise, dt_med, wind_noise, wind_noise_vertical), flight.site)
+    v_true = truth.v_n if layout.has("v") else None
+    w_true = truth.wind_n if layout.has("wind") else None
+
+    def at(k: int) -> None:
+        """The truth at IMU step k as the nominal state."""
+        lin.set_state(
+            truth.q_nb[k],
+            v_n=None if v_true is None else v_true[k],
+            wind_n=None if w_true is None else w_true[k],
+        )
+
     # Measurements, grouped per IMU step.
     rows: list[list[tuple[F64, F64]]] = [[] for _ in range(len(t))]
     used: dict[str, int] = {}
-    zeros3 = np.zeros(3)
-
-    def state(k: int) -> NominalState:
-        return NominalState(
-            q_nb=truth.q_nb[k],
-            bg=zeros3,
-            v_n=None if truth.v_n is None or not layout.has("v") else truth.v_n[k],
-            wind_n=truth.wind_n[k] if layout.has("wind") and truth.wind_n is not None else None,
-            ba=zeros3 if layout.has("ba") else None,
-            bm=zeros3 if layout.has("bm") else None,
-        )
 
     def attach(stream: str, t_s: F64, ok: ArrayLike, make: Callable[[int, int], tuple[F64, F64]]) -> None:
         idx = _step_index(t, t_s)
         take = np.flatnonzero(np.asarray(ok, dtype=bool) & (idx >= 0))
         for j in take:
-            rows[idx[j]].append(make(int(idx[j]), int(j)))
+            k = int(idx[j])
+            at(k)
+            rows[k].append(make(k, int(j)))
         used[stream] = len(take)
 
     sensors_used: list[str] = []
     if model == "gravity":
         _positive("accel", noise.accel, "accelerometer (gravity)")
-        r_acc = noise.accel**2 / dt_med * np.eye(3)
         ok = np.isfinite(flight.imu.f_b).all(axis=1)
-        attach("accel", t, ok, lambda k, j: (obs.specific_force(layout, state(k), g_n)[1], r_acc))
+        attach("accel", t, ok, lambda k, j: lin.gravity())
         sensors_used.append("accel")
     if use_mag:
         assert flight.mag is not None
         _positive("mag", noise.mag, "magnetometer")
-        mag_n = flight.site.mag_n
-        if mag_n is None:
+        if flight.site.mag_n is None:
             raise ValueError(
                 "flight.site.mag_n: expected the Earth field to use the magnetometer, found None"
             )
-        r_mag = noise.mag**2 * np.eye(3)
         ok = np.isfinite(flight.mag.mag_b).all(axis=1)
-        attach("mag", flight.mag.t, ok, lambda k, j: (obs.magnetometer(layout, state(k), mag_n)[1], r_mag))
+        attach("mag", flight.mag.t, ok, lambda k, j: lin.mag())
         sensors_used.append("mag")
     if use_gnss:
         assert flight.gnss is not None
         _positive("gnss", noise.gnss, "GNSS")
-        r_gnss = noise.gnss**2 * np.eye(3)
         ok = np.isfinite(flight.gnss.v_n).all(axis=1)
-        attach("gnss", flight.gnss.t, ok, lambda k, j: (obs.gnss_velocity(layout, state(k))[1], r_gnss))
+        attach("gnss", flight.gnss.t, ok, lambda k, j: lin.gnss())
         sensors_used.append("gnss")
     if use_air:
         assert flight.air is not None and truth.v_n is not None and truth.wind_n is not None
@@ -506,19 +539,16 @@ def pcrb(
         tas, aoa, beta = air_data_from_velocity(v_air_b)
         if air_s.has_vanes:
             _positive("vane", noise.vane, "air-data (vanes)")
-            sig = np.diag([noise.tas**2, noise.vane**2, noise.vane**2])
 
             def air_row(k: int, j: int) -> tuple[F64, F64]:
-                J = obs.air_direction_jacobian(float(tas[k]), float(aoa[k]), float(beta[k]))
-                return obs.air_velocity(layout, state(k))[1], J @ sig @ J.T
+                return lin.air_vector(float(tas[k]), float(aoa[k]), float(beta[k]))
 
             assert air_s.aoa is not None and air_s.sideslip is not None
             ok = np.isfinite(air_s.tas) & np.isfinite(air_s.aoa) & np.isfinite(air_s.sideslip)
         else:
-            r_tas = np.array([[noise.tas**2]])
 
             def air_row(k: int, j: int) -> tuple[F64, F64]:
-                return obs.airspeed(layout, state(k))[1], r_tas
+                return lin.tas(float(tas[k]))
 
             ok = np.isfinite(air_s.tas)
         attach("air", air_s.t, ok, air_row)
@@ -532,22 +562,14 @@ def pcrb(
             return r[0]
         return np.vstack([h for h, _ in r]), scipy.linalg.block_diag(*[R for _, R in r])
 
-    pnoise = ProcessNoise(
-        gyro=noise.gyro,
-        gyro_bias=noise.gyro_bias,
-        accel=noise.accel,
-        wind_h=wind_noise,
-        wind_v=wind_noise_vertical,
-        accel_bias=noise.accel_bias,
-        mag_bias=noise.mag_bias,
-    )
     f_in = f_b if f_b is not None else np.zeros((len(t), 3))
     dts = np.diff(t)
 
     def propagate(k: int, P: F64) -> F64:
-        # predict() returns Phi P Phi^T + Q; with bg = ba = 0 in the nominal state its rate
-        # and specific force are the true ones passed here.
-        return predict(layout, state(k - 1), P, w_b[k], f_in[k], float(dts[k - 1]), pnoise, g_n)[1]
+        # Phi P Phi^T + Q from the truth at k-1; with the biases 0 the rate and specific
+        # force are the true ones passed here.
+        at(k - 1)
+        return lin.predict(P, w_b[k], f_in[k], float(dts[k - 1]))
 
     cov = _recursion(len(t), P_init, propagate, measurement)
     return PcrbResult(

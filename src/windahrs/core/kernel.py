@@ -549,12 +549,23 @@ def make_state(
     initial: InitialState | None,
     has: frozenset[str],
     caps: I64,
+    *,
+    layout: Layout | None = None,
 ) -> KernelState:
     """A fresh KernelState, parameters and modes encoded once. kind: "mekf", "mekf-air"
     or "ins-wind"; additive: the quaternion-additive form (ekf7/ekf10); has: the streams
-    that will be fed; caps (N_SENSORS,): innovation log rows per sensor (SENSORS order)."""
+    that will be fed; caps (N_SENSORS,): innovation log rows per sensor (SENSORS order);
+    layout: the error-state blocks instead of :func:`layout_for`'s (e.g. the PCRB's,
+    :mod:`windahrs.core.linearize`), with the kernels' assumptions: the attitude at 0,
+    the velocity (when present) at 3, the covariance narrower than NMAX."""
     p, ini = params, initial
-    L = layout_for(kind, p, additive=additive)
+    if layout is None:
+        L = layout_for(kind, p, additive=additive)
+    else:
+        L = layout
+        if (L.has("v") and L.sl("v").start != 3) or L.dim + int(additive) >= NMAX:
+            raise ValueError(f"layout: expected the velocity (if any) at 3 and dim < {NMAX - int(additive)}, "
+                             f"found {L.blocks}")  # fmt: skip
     dim = L.dim
     n = dim + 1 if additive else dim
     cfg = np.zeros(N_CFG, dtype=np.int64)

@@ -1,25 +1,12 @@
-"""Error-state process model shared by the MEKF, the air-data MEKF and the INS (SPEC 2.4, 2.5).
+"""The error-state layout of the MEKF, the air-data MEKF and the INS (SPEC 2.4, 2.5), and
+a nominal state to go with it.
 
 Nominal state: attitude ``q_nb``, gyro bias ``bg``, and optionally velocity ``v_n`` (INS),
 wind ``wind_n``, accelerometer bias ``ba`` and magnetometer bias ``bm`` (hard iron, tesla).
 Error state: body-frame attitude error ``dtheta`` (``q = q_hat * Exp(dtheta)``) and additive
-errors of the rest, ordered by a :class:`Layout`.
-
-Discrete model over one IMU step ``dt`` with gyro ``w_m`` and specific force ``f_m``
-(the sample at the *end* of the step, see docs/conventions.md)::
-
-    q_k  = q_{k-1} * Exp((w_m - bg) dt)
-    v_k  = v_{k-1} + (C_nb(q_k) (f_m - ba) + g_n) dt
-    bg, ba, bm, wind: random walks
-
-Error transition (closed forms, SPEC 2.4; the velocity rows differentiate the update
-above exactly through ``dtheta_k = Phi11 dtheta_{k-1} + Phi12 dbg``)::
-
-    Phi[att, att] = Phi11 = C(Exp(w dt))^T        Phi[att, bg] = Phi12
-    Phi[v, att]   = -C_k [f]x dt Phi11             Phi[v, bg]   = -C_k [f]x dt Phi12
-    Phi[v, ba]    = -C_k dt
-
-Process noise: the Farrenkopf closed form for [att, bg] and ``sigma^2 dt`` for the rest.
+errors of the rest, ordered by a :class:`Layout`. The models themselves are the compiled
+core's (:mod:`windahrs.core.predict`, the aid sources of :mod:`windahrs.aid`), linearised at
+a state of any layout by :mod:`windahrs.core.linearize`.
 """
 
 from __future__ import annotations
@@ -29,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from windahrs.rotation import dcm_from_quat, quat_exp, quat_mul, quat_normalize, skew
+from windahrs.rotation import quat_exp, quat_mul, quat_normalize
 
-__all__ = ["BLOCK_SIZES", "Layout", "NominalState", "ProcessNoise", "attitude_transition", "predict"]
+__all__ = ["BLOCK_SIZES", "Layout", "NominalState"]
 
 F64 = NDArray[np.float64]
 
@@ -107,90 +94,3 @@ class NominalState:
             ba=add("ba", self.ba),
             bm=add("bm", self.bm),
         )
-
-
-@dataclass(frozen=True)
-class ProcessNoise:
-    """Continuous noise densities: gyro rad/s/sqrt(Hz), gyro bias rad/s^2/sqrt(Hz),
-    accelerometer m/s^2/sqrt(Hz), horizontal and vertical wind m/s^2/sqrt(Hz),
-    accelerometer bias m/s^3/sqrt(Hz), magnetometer bias tesla/s/sqrt(Hz); gyro_scale
-    1/sqrt(Hz): rate-proportional gyro noise, the attitude density becomes
-    ``gyro^2 + (gyro_scale |w - bg|)^2`` (scale-factor and misalignment errors)."""
-
-    gyro: float
-    gyro_bias: float
-    accel: float = 0.0
-    wind_h: float = 0.0
-    wind_v: float = 0.0
-    accel_bias: float = 0.0
-    mag_bias: float = 0.0
-    gyro_scale: float = 0.0
-
-
-def attitude_transition(w: F64, dt: float) -> tuple[F64, F64]:
-    """Phi11 and Phi12 (3x3 each) of the attitude/bias error for rate ``w`` over ``dt``."""
-    a = float(np.linalg.norm(w))
-    W = skew(w)
-    W2 = W @ W
-    if a * dt < 1e-6:
-        # Series: the closed forms lose precision for tiny rotation angles.
-        phi11 = np.eye(3) - dt * W + 0.5 * dt**2 * W2
-        phi12 = -dt * np.eye(3) + 0.5 * dt**2 * W - dt**3 / 6.0 * W2
-    else:
-        s, c = np.sin(a * dt), np.cos(a * dt)
-        phi11 = np.eye(3) - s / a * W + (1 - c) / a**2 * W2
-        phi12 = -dt * np.eye(3) + (1 - c) / a**2 * W - (a * dt - s) / a**3 * W2
-    return phi11, phi12
-
-
-def predict(
-    layout: Layout,
-    x: NominalState,
-    P: F64,
-    w_m: F64,
-    f_m: F64,
-    dt: float,
-    noise: ProcessNoise,
-    gravity_n: F64,
-) -> tuple[NominalState, F64]:
-    """One IMU step of the nominal state and the error covariance (module docstring)."""
-    w = w_m - x.bg
-    q = quat_normalize(quat_mul(x.q_nb, quat_exp(w * dt)))
-    phi11, phi12 = attitude_transition(w, dt)
-    n = layout.dim
-    Phi = np.eye(n)
-    A, B = layout.sl("att"), layout.sl("bg")
-    Phi[A, A] = phi11
-    Phi[A, B] = phi12
-    Q = np.zeros((n, n))
-    sg2, sb2 = noise.gyro**2, noise.gyro_bias**2
-    if noise.gyro_scale > 0:
-        sg2 = sg2 + noise.gyro_scale**2 * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    Q[A, A] = (sg2 * dt + sb2 * dt**3 / 3.0) * np.eye(3)
-    Q[A, B] = Q[B, A] = -sb2 * dt**2 / 2.0 * np.eye(3)
-    Q[B, B] = sb2 * dt * np.eye(3)
-    v_n = x.v_n
-    if layout.has("v"):
-        assert x.v_n is not None
-        f = f_m - (x.ba if x.ba is not None else 0.0)
-        C = dcm_from_quat(q)
-        v_n = x.v_n + (C @ f + gravity_n) * dt
-        V = layout.sl("v")
-        CFdt = -C @ skew(f) * dt
-        Phi[V, A] = CFdt @ phi11
-        Phi[V, B] = CFdt @ phi12
-        Q[V, V] = noise.accel**2 * dt * np.eye(3)
-        if layout.has("ba"):
-            Phi[V, layout.sl("ba")] = -C * dt
-    if layout.has("wind"):
-        Wn = layout.sl("wind")
-        Q[Wn, Wn] = np.diag([noise.wind_h**2, noise.wind_h**2, noise.wind_v**2]) * dt
-    if layout.has("ba"):
-        Ba = layout.sl("ba")
-        Q[Ba, Ba] = noise.accel_bias**2 * dt * np.eye(3)
-    if layout.has("bm"):
-        Bm = layout.sl("bm")
-        Q[Bm, Bm] = noise.mag_bias**2 * dt * np.eye(3)
-    P_new = Phi @ P @ Phi.T + Q
-    P_new = 0.5 * (P_new + P_new.T)
-    return NominalState(q_nb=q, bg=x.bg, v_n=v_n, wind_n=x.wind_n, ba=x.ba, bm=x.bm), P_new
