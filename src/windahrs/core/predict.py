@@ -70,7 +70,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     e = _qexp(wx * dt, wy * dt, wz * dt)
     q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
-    # attitude_transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
+    # the attitude transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
     # W = [w]x; W^2 = w w^T - |w|^2 I entry by entry as W @ W evaluates it.
     a = math.sqrt(wx * wx + wy * wy + wz * wz)
     if a * dt < 1e-6:  # the series (the closed form loses precision)

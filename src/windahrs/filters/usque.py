@@ -14,8 +14,8 @@ waiting for a magnetometer sample), the magnetometer reference, the scalar quate
 helpers, the innovation logs, the recording of states and covariance and the streamer
 (:class:`~windahrs.core.kernel.CompiledStreamer` with the step loop swapped). The process
 noise is the Farrenkopf closed form of SPEC 2.4; the measurement models are those of
-:mod:`windahrs.models.observations` (the accelerometer as gravity only, the magnetometer in
-3-D or as heading), with [mekf]'s gates (``| |f| - g |`` and the per-component innovation
+:mod:`windahrs.aid.gravity` and :mod:`windahrs.aid.mag` (the accelerometer as gravity only,
+the magnetometer in 3-D or as heading), with [mekf]'s gates (``| |f| - g |`` and the per-component innovation
 test). Only the way the mean and covariance travel through the models differs: unscented
 transforms with 2n + 1 = 13 sigma points, lambda = 1, the same weights for mean and
 covariance.
@@ -291,7 +291,8 @@ def _propagate(prm, x, P, work, w0, w1, w2, dt):
 @njit(**_JIT)
 def _predict_vector(work, r0, r1, r2):
     """Y_i = C_bn(q_i) r for the 13 point quaternions: the prediction of
-    ``observations.specific_force`` (r = -g_n) and ``vector_body`` (r = m_n), expanded."""
+    accelerometer as gravity (r = -g_n, :mod:`windahrs.aid.gravity`) and of the 3-D
+    magnetometer (r = m_n, :mod:`windahrs.aid.mag`), expanded."""
     Q, Y = work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
     for i in range(_NP):
         w, v0, v1, v2 = Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]
@@ -305,7 +306,7 @@ def _predict_vector(work, r0, r1, r2):
 
 @njit(**_JIT)
 def _predict_heading(work):
-    """The points' yaw (``observations.heading``), unwrapped about the centre's:
+    """The points' ZYX yaw (the "yaw" heading model of :mod:`windahrs.aid.mag`), unwrapped about the centre's:
     Y_0 + wrap(Y_i - Y_0)."""
     Q, Y = work[U_Q : U_Q + _NP], work[U_Y : U_Y + _NP]
     for i in range(_NP):
