@@ -132,7 +132,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     on the error-state columns sup[0, :nsup] (the attitude columns 0..2 always written);
     m is 1, 2 or 3. Returns whether the update was accepted.
 
-    Loops run over whole padded rows of P (constant length NMAX) with every row of the
+    Loops run over whole padded rows of P (whole SIMD lanes) with every row of the
     measurement in one pass, which lets the compiler vectorise them."""
     n = cfg[C_N]
     H, sup = work[W_H : W_H + 3], sups[0]
