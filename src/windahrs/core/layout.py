@@ -35,20 +35,23 @@ MAG_3D, MAG_HEADING, MAG_OFF = 0, 1, 2
 AIR_AUTO, AIR_VECTOR, AIR_AIRSPEED, AIR_OFF = 0, 1, 2, 3
 
 #: The sensor registry: each aid source's innovation log as (key, the Flight stream that
-#: feeds it, rows). Each aid source (windahrs.aid) logs under its key; a new sensor adds a
-#: row here and nothing else in the core (the log layout below is sized from it).
-AID_LOGS: tuple[tuple[str, str, int], ...] = (
-    ("accel", "imu", 3),
-    ("mag", "mag", 3),  # 1 row when fused as heading
-    ("gnss", "gnss", 3),
-    ("air", "air", 3),
-    ("tas", "air", 1),
-    ("sideslip", "air", 1),
-    ("drag", "imu", 2),
+#: feeds it, rows, the rows' labels). Each aid source (windahrs.aid) logs under its key; a
+#: new sensor adds a row here and nothing else in the core (the log layout below is sized
+#: from it), and the reports label its innovations from it.
+AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
+    ("accel", "imu", 3, "xyz"),
+    ("mag", "mag", 3, "xyz"),  # 1 row when fused as heading
+    ("gnss", "gnss", 3, "NED"),
+    ("air", "air", 3, "xyz"),
+    ("tas", "air", 1, ""),
+    ("sideslip", "air", 1, ""),
+    ("drag", "imu", 2, "xy"),
 )
 SENSORS = tuple(a[0] for a in AID_LOGS)
 SENSOR_STREAMS = tuple(a[1] for a in AID_LOGS)
 SENSOR_ROWS = tuple(a[2] for a in AID_LOGS)
+#: Labels of each log's innovation rows, by key (what reports print).
+SENSOR_LABELS = {a[0]: a[3] for a in AID_LOGS}
 N_SENSORS = len(SENSORS)
 INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SENSORS.index("gnss")
 INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")

@@ -28,6 +28,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from windahrs.core.layout import SENSOR_LABELS
 from windahrs.estimate import Estimate
 from windahrs.experiments.align import (  # the alignment's text lives beside it; re-exported
     ALIGN_RESIDUAL_DEG,
@@ -76,7 +77,6 @@ _CHANNELS: dict[str, list[tuple[str, str, float, tuple[str, ...]]]] = {
     "air": [("airspeed", "m/s", 1.0, ("",)), ("aoa", "rad", 1.0, ("",)), ("sideslip", "rad", 1.0, ("",))],
 }
 
-_COMPONENTS = {"accel": "xyz", "acc": "xyz", "mag": "xyz", "air": "xyz", "gnss": "NED"}
 
 
 # ---------------------------------------------------------------------------------------
@@ -438,7 +438,7 @@ def _innovation_section(results: Sequence[tuple[str, Estimate]]) -> Section:
                     alt=f"NIS of {tag} against time",
                 )
             )
-            comps = _COMPONENTS.get(sensor, "")
+            comps = SENSOR_LABELS.get(sensor, "")
             panels = [f"{sensor} {c}" for c in comps] if dim == len(comps) else (
                 [sensor] if dim == 1 else [f"{sensor} {k}" for k in range(dim)]
             )
