@@ -13,16 +13,9 @@ from scipy.linalg import expm
 from windahrs.conventions import DEG, UP_N
 from windahrs.estimate import Estimate
 from windahrs.filters.base import InitialState, MissingSensorError, merge_events
-from windahrs.filters.paper import (
-    AdditiveUKF,
-    AdditiveUKFParams,
-    PaperEKF,
-    PaperEKFNoWind,
-    PaperNoWindParams,
-    PaperParams,
-    TraditionalEKF,
-    TraditionalEKFParams,
-)
+from windahrs.filters.ekf import TraditionalEKF, TraditionalEKFParams
+from windahrs.filters.paper import PaperEKF, PaperEKFNoWind, PaperNoWindParams, PaperParams
+from windahrs.filters.ukf import AdditiveUKF, AdditiveUKFParams
 from windahrs.flight import Flight, ImuStream, MagStream, Site
 from windahrs.models.additive import (
     Omega,
@@ -202,7 +195,7 @@ def test_printed_innovation_is_biased_and_ours_is_not() -> None:
     # stays put; with the printed form every accelerometer innovation would be [0, 0, 1].
     flight = _static_level_flight()
     est = PaperEKFNoWind().run(flight, initial=InitialState(q_nb=q))
-    acc = est.innovations["acc"]
+    acc = est.innovations["accel"]
     assert len(acc.t) == len(flight.imu.t) - 1
     np.testing.assert_allclose(acc.nu, 0.0, atol=1e-12)
     np.testing.assert_allclose(est.innovations["mag"].nu, 0.0, atol=1e-12)
@@ -283,7 +276,7 @@ def test_baselines_on_the_paper_scenario_have_their_shapes() -> None:
         assert (out.gyro_bias_b is not None) == isinstance(est, AdditiveUKF)
         np.testing.assert_allclose(np.linalg.norm(out.q_nb, axis=1), 1.0, atol=1e-12)
         assert (out.q_nb[:, 0] >= 0).all()
-        assert set(out.innovations) >= {"acc", "mag"}
+        assert set(out.innovations) >= {"accel", "mag"}
         assert all(inn.accepted.all() for inn in out.innovations.values())
         assert _rms(total[last]) < 6.0
 

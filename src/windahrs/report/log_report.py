@@ -72,7 +72,7 @@ _CHANNELS: dict[str, list[tuple[str, str, float, tuple[str, ...]]]] = {
     "air": [("airspeed", "m/s", 1.0, ("",)), ("aoa", "rad", 1.0, ("",)), ("sideslip", "rad", 1.0, ("",))],
 }
 
-_COMPONENTS = {"accel": "xyz", "acc": "xyz", "mag": "xyz", "air": "xyz", "gnss": "NED"}
+_COMPONENTS = {"accel": "xyz", "mag": "xyz", "air": "xyz", "gnss": "NED"}
 
 
 # ---------------------------------------------------------------------------------------

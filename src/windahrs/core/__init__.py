@@ -1,0 +1,1 @@
+"""The generic compiled (numba) filter core: dense Kalman and unscented-transform steps."""
