@@ -3,9 +3,12 @@ unscented-transform functions, shared by the additive-quaternion filters (paper,
 paper-nowind, ekf, ukf).
 
 States are (n,) float64 arrays, covariances (n, n), measurements (m,) with noise R (m, m);
-every function returns new arrays and leaves its arguments alone. The matrices are small
-(n <= 7, m = 3), so the products are plain loops (no BLAS call per sample) and the
-innovation covariance is inverted by Cholesky (it is symmetric positive definite).
+every function returns new arrays and leaves its arguments alone. The EKF update is
+written in plain loops (n <= 7, m = 3: no BLAS call per sample), inverting the innovation
+covariance by Cholesky (it is symmetric positive definite). The unscented functions keep
+the array expressions of the reference they replace: with a covariance whose eigenvalues
+coincide (the UKF's isotropic P0) the symmetric-eigen sigma points depend on the last bit
+of P, so their arithmetic is kept operation for operation.
 With ``NUMBA_DISABLE_JIT=1`` the same source runs as plain Python.
 """
 
@@ -177,18 +180,9 @@ def sigma_points(x, P, spread):  # type: ignore[no-untyped-def]
 @njit(**_JIT)
 def ut_mean_cov(X, wm, wc):  # type: ignore[no-untyped-def]
     """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n)."""
-    npts, n = X.shape
-    x = np.zeros(n)
-    for p in range(npts):
-        for i in range(n):
-            x[i] += wm[p] * X[p, i]
-    P = np.zeros((n, n))
-    for p in range(npts):
-        for i in range(n):
-            di = wc[p] * (X[p, i] - x[i])
-            for j in range(n):
-                P[i, j] += di * (X[p, j] - x[j])
-    return x, P
+    x = wm @ X
+    D = X - x
+    return x, (D.T * wc) @ D
 
 
 @njit(**_JIT)
@@ -198,49 +192,16 @@ def ut_update(x, P, X, Y, z, R, wm, wc):  # type: ignore[no-untyped-def]
 
     ``Pyy = sum wc dY dY^T + R``, ``Pxy = sum wc dX dY^T``, ``K = Pxy Pyy^-1``,
     ``x+ = x + K (z - y)``, ``P+ = P - K Pyy K^T``. Returns (x+, P+, nu = z - y, NIS)."""
-    npts, n = X.shape
-    m = Y.shape[1]
-    y = np.zeros(m)
-    for p in range(npts):
-        for a in range(m):
-            y[a] += wm[p] * Y[p, a]
-    Pyy = R.copy()
-    Pxy = np.zeros((n, m))
-    for p in range(npts):
-        for a in range(m):
-            da = wc[p] * (Y[p, a] - y[a])
-            for b in range(m):
-                Pyy[a, b] += da * (Y[p, b] - y[b])
-            for i in range(n):
-                Pxy[i, a] += da * (X[p, i] - x[i])
-    Si = spd_inverse(Pyy)
+    y = wm @ Y
+    dY = Y - y
+    dX = X - x
+    Pyy = (dY.T * wc) @ dY + R
+    Pxy = (dX.T * wc) @ dY
+    K = np.linalg.solve(Pyy, np.ascontiguousarray(Pxy.T)).T.copy()
     nu = z - y
-    K = np.zeros((n, m))
-    for i in range(n):
-        for a in range(m):
-            s = 0.0
-            for b in range(m):
-                s += Pxy[i, b] * Si[b, a]
-            K[i, a] = s
-    x2 = x.copy()
-    for i in range(n):
-        for a in range(m):
-            x2[i] += K[i, a] * nu[a]
-    KS = np.zeros((n, m))
-    for i in range(n):
-        for a in range(m):
-            s = 0.0
-            for b in range(m):
-                s += K[i, b] * Pyy[b, a]
-            KS[i, a] = s
-    P2 = P.copy()
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for a in range(m):
-                s += KS[i, a] * K[j, a]
-            P2[i, j] -= s
-    return x2, P2, nu, _quad(nu, Si)
+    x2 = x + K @ nu
+    P2 = P - K @ Pyy @ K.T
+    return x2, P2, nu, float(nu @ np.linalg.solve(Pyy, nu))
 
 
 @njit(**_JIT)

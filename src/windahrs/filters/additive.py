@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, ClassVar, NamedTuple, TypeVar
 
 import numpy as np
-from numba import njit
+from numba import njit, objmode
 from numpy.typing import NDArray
 
 from windahrs.core.dense import (
@@ -54,6 +54,7 @@ from windahrs.filters.base import (
     Streamer,
     merge_events,
 )
+from windahrs.filters.base import triad as base_triad
 from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
     Xi,
@@ -62,6 +63,7 @@ from windahrs.models.additive import (
     normalize_state,
     project_normalization,
     quat_cov_from_att_cov,
+    sinc,
     transition_exact,
     transition_picard4,
     vector_obs,
@@ -119,7 +121,7 @@ R_ACC_VAR = 4  # paper: accelerometer variance per component
 R_MAG_VAR = 5  # paper: magnetometer variance per component
 R_AIR_VAR = 6  # paper: air-flow variance per component
 R_GNSS_AGE = 7  # paper: oldest GNSS velocity the air row uses, s
-R_GYRO2 = 8  # gyro white-noise density^2
+R_GYRO = 8  # gyro white-noise density
 R_ACC_NOISE = 9  # accelerometer white-noise density
 R_ACC_UNIT2 = 10  # extra variance of the normalised accelerometer
 R_MAG_NOISE = 11  # magnetometer noise per sample, T
@@ -182,37 +184,26 @@ def _qnormalize(q):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _quat_from_euler(roll, pitch, yaw):  # type: ignore[no-untyped-def]
-    """rotation.quat_from_euler (ZYX)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    q = np.empty(4)
-    q[0] = cy * cp * cr + sy * sp * sr
-    q[1] = cy * cp * sr - sy * sp * cr
-    q[2] = cy * sp * cr + sy * cp * sr
-    q[3] = sy * cp * cr - cy * sp * sr
-    return _qnormalize(q)
+def _norm3(v):  # type: ignore[no-untyped-def]
+    """|v| as numpy.linalg.norm computes it (the UKF is sensitive to its last bit)."""
+    c = np.ascontiguousarray(v)
+    return math.sqrt(np.dot(c, c))
+
+
+def _triad_py(f_b: F64, mag_b: F64, use_mag: bool, mag_n: F64, use_ref: bool) -> F64:
+    q = base_triad(f_b, mag_b if use_mag else None, mag_n if use_ref else None)
+    return np.ascontiguousarray(q, dtype=np.float64)
 
 
 @njit(**_JIT)
 def triad(f_b, mag_b, use_mag, mag_n, use_ref):  # type: ignore[no-untyped-def]
-    """base.triad compiled: q_nb (4,) from a specific force f_b (3,) (roll, pitch) and,
-    when use_mag, a magnetometer sample mag_b (3,) (yaw, against mag_n (3,)'s declination
-    when use_ref)."""
-    nf = math.sqrt(f_b[0] ** 2 + f_b[1] ** 2 + f_b[2] ** 2)
-    u0, u1, u2 = f_b[0] / nf, f_b[1] / nf, f_b[2] / nf
-    roll = math.atan2(-u1, -u2)
-    pitch = math.asin(min(max(u0, -1.0), 1.0))
-    q = _quat_from_euler(roll, pitch, 0.0)
-    if not use_mag:
-        return q
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    # first two rows of dcm_from_quat(q) @ mag_b
-    m0 = (w * w + x * x - y * y - z * z) * mag_b[0] + 2 * (x * y - w * z) * mag_b[1] + 2 * (x * z + w * y) * mag_b[2]
-    m1 = 2 * (x * y + w * z) * mag_b[0] + (w * w - x * x + y * y - z * z) * mag_b[1] + 2 * (y * z - w * x) * mag_b[2]
-    decl = math.atan2(mag_n[1], mag_n[0]) if use_ref else 0.0
-    return _quat_from_euler(roll, pitch, -math.atan2(m1, m0) + decl)
+    """base.triad, called from compiled code (once per run, and for the states recorded
+    before initialisation): q_nb (4,) from f_b (3,) and, when use_mag, mag_b (3,) against
+    mag_n (3,)'s declination when use_ref. Its arcsin and arctan2 are numpy's, whose last
+    bits differ from the C library's (and the UKF's sigma points depend on them)."""
+    with objmode(q="float64[::1]"):
+        q = _triad_py(f_b, mag_b, use_mag, mag_n, use_ref)
+    return q
 
 
 @njit(**_JIT)
@@ -251,30 +242,71 @@ def _predict(cfg, prm, x, P, wm, wc, w_b, dt):  # type: ignore[no-untyped-def]
         X = Xi(q)
         x[:] = q
         # SPEC 2.3 Q_d,qq with sigma_b = 0: the gyro white noise, rank 3.
-        P[:, :] = propagate_cov(Phi, P, (prm[R_GYRO2] * dt / 4.0) * (X @ X.T))
+        P[:, :] = propagate_cov(Phi, P, (prm[R_GYRO] ** 2 * dt / 4.0) * (X @ X.T))
     else:
         S = sigma_points(x, P, prm[R_SPREAD])
         npts = S.shape[0]
         for p in range(npts):
-            # q * Exp((w - b) dt), for a constant rate over the step
-            q = transition_exact((w_b - S[p, 4:]) * dt) @ np.ascontiguousarray(S[p, :4])
-            nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-            S[p, :4] = q / nq
+            # q * Exp((w - b) dt) for a constant rate over the step, normalised
+            d = (w_b - S[p, 4:]) * dt
+            S[p, :4] = _qunit(_qmul(S[p, :4], _qexp(d)))
         # one hemisphere, the centre point's
+        c = S[0, :4].copy()
         for p in range(1, npts):
-            d = 0.0
-            for i in range(4):
-                d += S[p, i] * S[0, i]
-            if d < 0.0:
-                for i in range(4):
-                    S[p, i] = -S[p, i]
+            if S[p, 0] * c[0] + S[p, 1] * c[1] + S[p, 2] * c[2] + S[p, 3] * c[3] < 0.0:
+                S[p, :4] = -S[p, :4]
         xm, Pm = ut_mean_cov(S, wm, wc)
         Pm = project_normalization(Pm, xm[:4])
-        nq = math.sqrt(xm[0] ** 2 + xm[1] ** 2 + xm[2] ** 2 + xm[3] ** 2)
-        for i in range(4):
-            xm[i] = xm[i] / nq
+        q = np.ascontiguousarray(xm[:4])
+        xm[:4] = q / math.sqrt(np.dot(q, q))
         x[:] = xm
-        P[:, :] = Pm + ekf7_process_noise(xm[:4], math.sqrt(prm[R_GYRO2]), prm[R_BG_RW], dt)
+        P[:, :] = Pm + ekf7_process_noise(xm[:4].copy(), prm[R_GYRO], prm[R_BG_RW], dt)
+
+
+# The UKF's quaternion arithmetic is rotation.quat_mul / quat_exp / quat_rotate_inv
+# operation for operation (see core.dense on why its last bits matter).
+
+
+@njit(**_JIT)
+def _qmul(p, q):  # type: ignore[no-untyped-def]
+    """Hamilton product p * q of (4,) quaternions."""
+    out = np.empty(4)
+    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
+    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
+    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
+    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
+    return out
+
+
+@njit(**_JIT)
+def _qexp(d):  # type: ignore[no-untyped-def]
+    """Exp: rotation vector d (3,) rad to a unit quaternion (4,)."""
+    a = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    s = 0.5 * sinc(a / (2.0 * np.pi))
+    out = np.empty(4)
+    out[0] = math.cos(0.5 * a)
+    out[1], out[2], out[3] = s * d[0], s * d[1], s * d[2]
+    return out
+
+
+@njit(**_JIT)
+def _qunit(q):  # type: ignore[no-untyped-def]
+    """q / |q| (sign kept)."""
+    return q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+
+
+@njit(**_JIT)
+def _rotate_inv(q, v):  # type: ignore[no-untyped-def]
+    """``C_bn v = q^* v q`` for a unit q (4,), v (3,)."""
+    w, u0, u1, u2 = q[0], -q[1], -q[2], -q[3]
+    t0 = 2.0 * (u1 * v[2] - u2 * v[1])
+    t1 = 2.0 * (u2 * v[0] - u0 * v[2])
+    t2 = 2.0 * (u0 * v[1] - u1 * v[0])
+    out = np.empty(3)
+    out[0] = v[0] + w * t0 + (u1 * t2 - u2 * t1)
+    out[1] = v[1] + w * t1 + (u2 * t0 - u0 * t2)
+    out[2] = v[2] + w * t2 + (u0 * t1 - u1 * t0)
+    return out
 
 
 @njit(**_JIT)
@@ -294,9 +326,7 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, 
         S = sigma_points(x, P, prm[R_SPREAD])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
-            q = np.ascontiguousarray(S[p, :4])
-            q = q / math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-            Y[p] = vector_obs(q, r_n)
+            Y[p] = _rotate_inv(_qunit(S[p, :4]), r_n)
         x2, P2, nu, nis = ut_update(x, P, S, Y, z, R, wm, wc)
     else:
         q = x[:4].copy()
@@ -314,11 +344,6 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, 
     inn_id[k] = sensor
     flags[F_NLOG] = k + 1
     s[S_TSTATE] = t
-
-
-@njit(**_JIT)
-def _norm3(v):  # type: ignore[no-untyped-def]
-    return math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
 
 
 @njit(**_JIT)
@@ -364,7 +389,7 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):  # type: 
         # Unknown site field: the horizontal field is north, the dip is measured here
         # against the accelerometer's down direction.
         down = -f_b / _norm3(f_b)
-        c = (mag_b[0] * down[0] + mag_b[1] * down[1] + mag_b[2] * down[2]) / norm
+        c = np.dot(np.ascontiguousarray(mag_b), down) / norm
         c = min(max(c, -1.0), 1.0)
         s[S_MAGREF] = math.sqrt(1.0 - c * c)
         s[S_MAGREF + 1] = 0.0
@@ -546,7 +571,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
     prm[R_MAG_VAR] = c.mag_var
     prm[R_AIR_VAR] = c.air_var
     prm[R_GNSS_AGE] = c.gnss_max_age
-    prm[R_GYRO2] = c.gyro_noise**2
+    prm[R_GYRO] = c.gyro_noise
     prm[R_ACC_NOISE] = c.accel_noise
     prm[R_ACC_UNIT2] = c.accel_sigma_unit**2
     prm[R_MAG_NOISE] = c.mag_noise

@@ -38,6 +38,7 @@ __all__ = [
     "normalize_state",
     "project_normalization",
     "quat_cov_from_att_cov",
+    "sinc",
     "transition_exact",
     "transition_picard4",
     "vector_obs",
@@ -88,6 +89,15 @@ def Xi(q):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
+def sinc(x):  # type: ignore[no-untyped-def]
+    """numpy.sinc of a float, with numpy's arithmetic: ``sin(pi x)/(pi x)``, 1 at 0."""
+    y = np.pi * x
+    if y == 0.0:
+        y = np.finfo(np.float64).eps
+    return math.sin(y) / y
+
+
+@njit(**_JIT)
 def _diag_plus(c, s, M):  # type: ignore[no-untyped-def]
     """``c I + s M`` for a (4, 4) M."""
     out = s * M
@@ -105,8 +115,8 @@ def transition_exact(dtheta):  # type: ignore[no-untyped-def]
     """
     _check(dtheta, 3, "dtheta: expected shape (3,)")
     a = math.sqrt(dtheta[0] ** 2 + dtheta[1] ** 2 + dtheta[2] ** 2)
-    # np.sinc(x) = sin(pi x)/(pi x) removes the a -> 0 singularity of sin(a/2)/a.
-    s = 0.5 * np.sinc(a / (2.0 * np.pi))
+    # sinc(x) = sin(pi x)/(pi x) removes the a -> 0 singularity of sin(a/2)/a.
+    s = 0.5 * sinc(a / (2.0 * np.pi))
     return _diag_plus(math.cos(0.5 * a), s, Omega(dtheta))
 
 
@@ -233,12 +243,10 @@ def normalization_jacobian(q):  # type: ignore[no-untyped-def]
     that P keeps no variance along the (meaningless) norm direction.
     """
     _check(q, 4, "q: expected shape (4,)")
-    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    J = np.empty((4, 4))
-    for i in range(4):
-        for j in range(4):
-            J[i, j] = ((1.0 if i == j else 0.0) - (q[i] / n) * (q[j] / n)) / n
-    return J
+    qc = np.ascontiguousarray(q)
+    n = math.sqrt(np.dot(qc, qc))
+    u = qc / n
+    return (np.eye(4) - np.outer(u, u)) / n
 
 
 @njit(**_JIT)
@@ -246,36 +254,20 @@ def project_normalization(P, q):  # type: ignore[no-untyped-def]
     """``J P J^T`` (n, n) with ``J = blkdiag(normalization_jacobian(q), I)``: the
     covariance P (n, n) of a state starting with the quaternion q (4,), carried through
     ``q -> q/|q|``. Returns a new array."""
-    J = normalization_jacobian(q)
-    n = P.shape[0]
-    A = P.copy()  # A = J P
-    for i in range(4):
-        for j in range(n):
-            s = 0.0
-            for k in range(4):
-                s += J[i, k] * P[k, j]
-            A[i, j] = s
-    out = A.copy()  # out = A J^T
-    for i in range(n):
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += A[i, k] * J[j, k]
-            out[i, j] = s
-    return out
+    J = np.eye(P.shape[0])
+    J[:4, :4] = normalization_jacobian(q)
+    return J @ np.ascontiguousarray(P) @ J.T
 
 
 @njit(**_JIT)
 def normalize_state(x, P):  # type: ignore[no-untyped-def]
     """``q <- q/|q|`` (w >= 0) and ``P <- J P J^T`` symmetrised (SPEC 2.3), for a state x
     (n,) starting with the quaternion and its covariance P (n, n). Returns new (x, P)."""
-    q = x[:4].copy()
+    q = np.ascontiguousarray(x[:4])
     P2 = project_normalization(P, q)
     # The sign flip to w >= 0 leaves P unchanged (it is J -> -J on both sides).
     x2 = x.copy()
-    s = math.copysign(1.0, q[0]) / math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    for i in range(4):
-        x2[i] = q[i] * s
+    x2[:4] = q * (math.copysign(1.0, q[0]) / math.sqrt(np.dot(q, q)))
     return x2, 0.5 * (P2 + P2.T)
 
 
