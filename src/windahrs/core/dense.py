@@ -15,6 +15,7 @@ With ``NUMBA_DISABLE_JIT=1`` the same source runs as plain Python.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -29,11 +30,11 @@ __all__ = [
     "ut_weights",
 ]
 
-_JIT = {"cache": True, "error_model": "numpy"}
+_JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 
 
 @njit(**_JIT)
-def spd_inverse(S):  # type: ignore[no-untyped-def]
+def spd_inverse(S):
     """Inverse (m, m) of a symmetric positive definite S (m, m), by Cholesky."""
     m = S.shape[0]
     L = np.zeros((m, m))
@@ -68,7 +69,7 @@ def spd_inverse(S):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _quad(nu, Si):  # type: ignore[no-untyped-def]
+def _quad(nu, Si):
     m = nu.shape[0]
     s = 0.0
     for i in range(m):
@@ -78,76 +79,57 @@ def _quad(nu, Si):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def kalman_update(x, P, H, nu, R):  # type: ignore[no-untyped-def]
+def kalman_update(x, P, H, nu, R):
     """EKF update with the innovation nu (m,) = z - h(x), Jacobian H (m, n), noise R (m, m).
 
     Joseph form ``P+ = (I - K H) P (I - K H)^T + K R K^T``, ``K = P H^T S^-1``,
-    ``S = H P H^T + R``. Returns (x+ (n,), P+ (n, n), NIS ``nu^T S^-1 nu``)."""
+    ``S = H P H^T + R``, evaluated expanded as ``P + K G^T + G K^T`` with ``U = P H^T``,
+    ``G = K S / 2 - U`` (the same matrix, exactly symmetric in floating point, no n x n
+    temporaries). Returns (x+ (n,), P+ (n, n), NIS ``nu^T S^-1 nu``)."""
     n, m = x.shape[0], nu.shape[0]
-    U = np.zeros((n, m))  # P H^T
+    U = np.empty((n, m))  # P H^T
     for i in range(n):
         for a in range(m):
             s = 0.0
             for k in range(n):
                 s += P[i, k] * H[a, k]
             U[i, a] = s
-    S = R.copy()
+    S = np.empty((m, m))
     for a in range(m):
         for b in range(m):
             s = 0.0
             for k in range(n):
                 s += H[a, k] * U[k, b]
-            S[a, b] += s
+            S[a, b] = s + R[a, b]
     Si = spd_inverse(S)
-    K = np.zeros((n, m))
+    K = np.empty((n, m))
+    G = np.empty((n, m))
+    x2 = x.copy()
     for i in range(n):
         for a in range(m):
             s = 0.0
             for b in range(m):
                 s += U[i, b] * Si[b, a]
             K[i, a] = s
-    x2 = x.copy()
-    for i in range(n):
-        s = 0.0
-        for a in range(m):
-            s += K[i, a] * nu[a]
-        x2[i] += s
-    A = np.eye(n)  # I - K H
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for a in range(m):
-                s += K[i, a] * H[a, j]
-            A[i, j] -= s
-    AP = np.zeros((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(n):
-                s += A[i, k] * P[k, j]
-            AP[i, j] = s
-    KR = np.zeros((n, m))
-    for i in range(n):
         for a in range(m):
             s = 0.0
             for b in range(m):
-                s += K[i, b] * R[b, a]
-            KR[i, a] = s
+                s += K[i, b] * S[b, a]
+            G[i, a] = 0.5 * s - U[i, a]
+            x2[i] += K[i, a] * nu[a]
     P2 = np.empty((n, n))
     for i in range(n):
-        for j in range(n):
+        for j in range(i, n):
             s = 0.0
-            for k in range(n):
-                s += AP[i, k] * A[j, k]
-            r = 0.0
             for a in range(m):
-                r += KR[i, a] * K[j, a]
-            P2[i, j] = s + r
+                s += K[i, a] * G[j, a] + G[i, a] * K[j, a]
+            P2[i, j] = P[i, j] + s
+            P2[j, i] = P[j, i] + s
     return x2, P2, _quad(nu, Si)
 
 
 @njit(**_JIT)
-def ut_weights(n, alpha, beta, kappa):  # type: ignore[no-untyped-def]
+def ut_weights(n, alpha, beta, kappa):
     """Scaled unscented transform on an n-vector: ``lambda = alpha^2 (n + kappa) - n``.
 
     Returns (mean weights (2n+1,), covariance weights (2n+1,), spread ``n + lambda``)."""
@@ -160,7 +142,7 @@ def ut_weights(n, alpha, beta, kappa):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def sigma_points(x, P, spread):  # type: ignore[no-untyped-def]
+def sigma_points(x, P, spread):
     """(2n+1, n) points ``x, x + columns of S, x - columns of S``, ``S S^T = spread P``.
 
     S is the symmetric-eigen square root ``V sqrt(max(w, 0))`` of the symmetrised P: a
@@ -178,7 +160,7 @@ def sigma_points(x, P, spread):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def ut_mean_cov(X, wm, wc):  # type: ignore[no-untyped-def]
+def ut_mean_cov(X, wm, wc):
     """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n)."""
     x = wm @ X
     D = X - x
@@ -186,7 +168,7 @@ def ut_mean_cov(X, wm, wc):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def ut_update(x, P, X, Y, z, R, wm, wc):  # type: ignore[no-untyped-def]
+def ut_update(x, P, X, Y, z, R, wm, wc):
     """Unscented update of (x (n,), P (n, n)) from the sigma points X (2n+1, n), their
     predicted measurements Y (2n+1, m), the measurement z (m,) and its noise R (m, m).
 
@@ -205,7 +187,7 @@ def ut_update(x, P, X, Y, z, R, wm, wc):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def propagate_cov(F, P, Q):  # type: ignore[no-untyped-def]
+def propagate_cov(F, P, Q):
     """``F P F^T + Q`` (n, n) for a transition F (n, n), covariance P and noise Q (n, n)."""
     n = P.shape[0]
     FP = np.zeros((n, n))

@@ -173,7 +173,7 @@ class KernelState(NamedTuple):
 
 
 @njit(**_JIT)
-def _qnormalize(q):  # type: ignore[no-untyped-def]
+def _qnormalize(q):
     """rotation.quat_normalize: unit, ``w >= 0``."""
     n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
     sign = -1.0 if q[0] < 0.0 else 1.0
@@ -184,7 +184,7 @@ def _qnormalize(q):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _norm3(v):  # type: ignore[no-untyped-def]
+def _norm3(v):
     """|v| as numpy.linalg.norm computes it (the UKF is sensitive to its last bit)."""
     c = np.ascontiguousarray(v)
     return math.sqrt(np.dot(c, c))
@@ -196,7 +196,7 @@ def _triad_py(f_b: F64, mag_b: F64, use_mag: bool, mag_n: F64, use_ref: bool) ->
 
 
 @njit(**_JIT)
-def triad(f_b, mag_b, use_mag, mag_n, use_ref):  # type: ignore[no-untyped-def]
+def triad(f_b, mag_b, use_mag, mag_n, use_ref):
     """base.triad, called from compiled code (once per run, and for the states recorded
     before initialisation): q_nb (4,) from f_b (3,) and, when use_mag, mag_b (3,) against
     mag_n (3,)'s declination when use_ref. Its arcsin and arctan2 are numpy's, whose last
@@ -207,7 +207,7 @@ def triad(f_b, mag_b, use_mag, mag_n, use_ref):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _start(cfg, prm, flags, x, P, q_raw):  # type: ignore[no-untyped-def]
+def _start(cfg, prm, flags, x, P, q_raw):
     """Initial state and covariance at the attitude q_raw (4,)."""
     q = _qnormalize(q_raw)
     n = cfg[C_N]
@@ -227,22 +227,34 @@ def _start(cfg, prm, flags, x, P, q_raw):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _predict(cfg, prm, x, P, wm, wc, w_b, dt):  # type: ignore[no-untyped-def]
+def _matvec4(M, v):
+    out = np.empty(4)
+    for i in range(4):
+        out[i] = M[i, 0] * v[0] + M[i, 1] * v[1] + M[i, 2] * v[2] + M[i, 3] * v[3]
+    return out
+
+
+@njit(**_JIT)
+def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
     """Propagate (x, P) in place over dt with the gyro sample w_b (3,)."""
     kind = cfg[C_KIND]
     if kind == KIND_PAPER:
         # The paper's filter has no bias state: the raw gyro drives eq. 6.
         Phi = transition_picard4(w_b * dt)
-        q = Phi @ x
-        x[:] = q
+        x[:] = _matvec4(Phi, x)
         P[:, :] = propagate_cov(Phi, P, prm[R_Q_VAR] * np.eye(4))
     elif kind == KIND_EKF:
         Phi = transition_exact(w_b * dt)
-        q = Phi @ x
+        q = _matvec4(Phi, x)
         X = Xi(q)
         x[:] = q
         # SPEC 2.3 Q_d,qq with sigma_b = 0: the gyro white noise, rank 3.
-        P[:, :] = propagate_cov(Phi, P, (prm[R_GYRO] ** 2 * dt / 4.0) * (X @ X.T))
+        c = prm[R_GYRO] ** 2 * dt / 4.0
+        Q = np.empty((4, 4))
+        for i in range(4):
+            for j in range(4):
+                Q[i, j] = c * (X[i, 0] * X[j, 0] + X[i, 1] * X[j, 1] + X[i, 2] * X[j, 2])
+        P[:, :] = propagate_cov(Phi, P, Q)
     else:
         S = sigma_points(x, P, prm[R_SPREAD])
         npts = S.shape[0]
@@ -268,7 +280,7 @@ def _predict(cfg, prm, x, P, wm, wc, w_b, dt):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _qmul(p, q):  # type: ignore[no-untyped-def]
+def _qmul(p, q):
     """Hamilton product p * q of (4,) quaternions."""
     out = np.empty(4)
     out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
@@ -279,7 +291,7 @@ def _qmul(p, q):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _qexp(d):  # type: ignore[no-untyped-def]
+def _qexp(d):
     """Exp: rotation vector d (3,) rad to a unit quaternion (4,)."""
     a = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
     s = 0.5 * sinc(a / (2.0 * np.pi))
@@ -290,13 +302,13 @@ def _qexp(d):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _qunit(q):  # type: ignore[no-untyped-def]
+def _qunit(q):
     """q / |q| (sign kept)."""
     return q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
 
 
 @njit(**_JIT)
-def _rotate_inv(q, v):  # type: ignore[no-untyped-def]
+def _rotate_inv(q, v):
     """``C_bn v = q^* v q`` for a unit q (4,), v (3,)."""
     w, u0, u1, u2 = q[0], -q[1], -q[2], -q[3]
     t0 = 2.0 * (u1 * v[2] - u2 * v[1])
@@ -310,14 +322,14 @@ def _rotate_inv(q, v):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _normalize(x, P):  # type: ignore[no-untyped-def]
+def _normalize(x, P):
     x2, P2 = normalize_state(x, P)
     x[:] = x2
     P[:, :] = P2
 
 
 @njit(**_JIT)
-def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, r_n, var):  # type: ignore[no-untyped-def]
+def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, r_n, var):
     """Fuse ``z = C_bn r_n + v``, v ~ N(0, var I3): EKF (Joseph form) or unscented update,
     normalisation, one log row."""
     n = cfg[C_N]
@@ -347,7 +359,7 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, 
 
 
 @njit(**_JIT)
-def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):  # type: ignore[no-untyped-def]
+def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):
     """IMU sample: gyro w_b (3,) rad/s, specific force f_b (3,) m/s^2 at t s."""
     first = flags[F_TIMU] == 0
     dt = 0.0 if first else t - s[S_TIMU]
@@ -378,7 +390,7 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):  # typ
 
 
 @njit(**_JIT)
-def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):  # type: ignore[no-untyped-def]
+def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):
     """Magnetometer sample mag_b (3,) T at t s."""
     if flags[F_F] == 0:
         flags[K_UNF + 0] += 1  # mag_before_imu
@@ -411,7 +423,7 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):  # type: 
 
 
 @njit(**_JIT)
-def step_gnss(s, flags, t, v_n):  # type: ignore[no-untyped-def]
+def step_gnss(s, flags, t, v_n):
     """GNSS velocity v_n (3,) m/s NED at t s: remembered for the air-flow row."""
     s[S_V : S_V + 3] = v_n
     s[S_TGNSS] = t
@@ -419,7 +431,7 @@ def step_gnss(s, flags, t, v_n):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n):  # type: ignore[no-untyped-def]
+def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n):
     """Air data at t s: the air-flow direction from the vanes (aoa, beta rad) against
     ``u = (V_n - W_n)/|V_n - W_n|``, V_n the latest GNSS velocity, wind_n (3,) the
     provider's wind (SPEC 3.4.3)."""
@@ -447,7 +459,7 @@ def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n
 
 
 @njit(**_JIT)
-def record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov):  # type: ignore[no-untyped-def]
+def record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov):
     """Write the current estimate into row k: q_nb (4,) into out_q, the gyro bias (UKF)
     into out_bg, the reported covariance into out_cov (paper: 4x4 on q; ekf: 3x3 attitude
     error; ukf: 6x6 attitude error and bias, ``T P T^T``, ``T = blkdiag(2 Xi^T, I)``)."""
@@ -479,7 +491,7 @@ def record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov):  # type: ignore[no-u
 
 
 @njit(**_JIT)
-def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):  # type: ignore[no-untyped-def]
+def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
     """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6);
     an air row carries the wind in columns 3..5), skip and count NaN samples, and (rec)
     record for IMU sample k the state after every event with t <= t_imu[k]."""

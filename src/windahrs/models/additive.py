@@ -24,6 +24,7 @@ printed innovation ``z - H x`` is wrong and ``z - h(x)`` is used.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -45,17 +46,17 @@ __all__ = [
     "vector_obs_jacobian",
 ]
 
-_JIT = {"cache": True, "error_model": "numpy"}
+_JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 
 
 @njit(**_JIT)
-def _check(a, n, msg):  # type: ignore[no-untyped-def]
+def _check(a, n, msg):
     if a.ndim != 1 or a.shape[0] != n:
         raise ValueError(msg)
 
 
 @njit(**_JIT)
-def Omega(w):  # type: ignore[no-untyped-def]
+def Omega(w):
     """The 4x4 matrix of ``q * [0, w] = Omega(w) q`` (SPEC 2.1; paper eq. 5 corrected).
 
     w: (3,) body rate (rad/s) or rotation increment (rad). Returns (4, 4), skew-symmetric,
@@ -72,7 +73,7 @@ def Omega(w):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def Xi(q):  # type: ignore[no-untyped-def]
+def Xi(q):
     """The 4x3 matrix of ``q * [0, v] = Xi(q) v`` (SPEC 2.1).
 
     q: (4,). For a unit ``q``: ``Xi^T Xi = I3`` and ``Xi Xi^T = I4 - q q^T``; the columns
@@ -89,7 +90,7 @@ def Xi(q):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def sinc(x):  # type: ignore[no-untyped-def]
+def sinc(x):
     """numpy.sinc of a float, with numpy's arithmetic: ``sin(pi x)/(pi x)``, 1 at 0."""
     y = np.pi * x
     if y == 0.0:
@@ -98,7 +99,7 @@ def sinc(x):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _diag_plus(c, s, M):  # type: ignore[no-untyped-def]
+def _diag_plus(c, s, M):
     """``c I + s M`` for a (4, 4) M."""
     out = s * M
     for i in range(4):
@@ -107,7 +108,7 @@ def _diag_plus(c, s, M):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def transition_exact(dtheta):  # type: ignore[no-untyped-def]
+def transition_exact(dtheta):
     """Exact transition ``exp(1/2 Omega(dtheta)) = cos(a/2) I + sin(a/2)/a Omega(dtheta)``.
 
     dtheta: (3,) rotation increment over the step, rad; ``a = |dtheta|``. Returns (4, 4);
@@ -121,7 +122,7 @@ def transition_exact(dtheta):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def transition_picard4(dtheta):  # type: ignore[no-untyped-def]
+def transition_picard4(dtheta):
     """Fourth-order Picard (Taylor) transition of the paper, eq. 6 corrected (SPEC 2.2).
 
     ``(1 - a^2/8 + a^4/384) I + (1/2 - a^2/48) Omega(dtheta)``, ``a^2 = |dtheta|^2``
@@ -134,7 +135,7 @@ def transition_picard4(dtheta):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def _right_jacobian(phi):  # type: ignore[no-untyped-def]
+def _right_jacobian(phi):
     """Right Jacobian of SO(3), ``J_r(phi)`` (3, 3) (SPEC 2.3), as rotation.right_jacobian."""
     a = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
     if a < 1e-5:
@@ -148,7 +149,7 @@ def _right_jacobian(phi):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def ekf7_jacobian(q_prev, dtheta, dt):  # type: ignore[no-untyped-def]
+def ekf7_jacobian(q_prev, dtheta, dt):
     """Jacobian (7, 7) of the 7-state transition ``[Phi(dtheta) q; b]`` (SPEC 2.3, exact form).
 
     q_prev: (4,) quaternion before the step; dtheta: (3,) bias-corrected increment
@@ -167,7 +168,7 @@ def ekf7_jacobian(q_prev, dtheta, dt):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def ekf7_process_noise(q, sigma_g, sigma_b, dt):  # type: ignore[no-untyped-def]
+def ekf7_process_noise(q, sigma_g, sigma_b, dt):
     """Discrete process noise (7, 7) of ``[q; b_g]`` over one step (SPEC 2.3).
 
     q: (4,) quaternion (unit); sigma_g: gyro white-noise density, rad/s/sqrt(Hz);
@@ -185,7 +186,7 @@ def ekf7_process_noise(q, sigma_g, sigma_b, dt):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def vector_obs(q, r_n):  # type: ignore[no-untyped-def]
+def vector_obs(q, r_n):
     """A nav vector seen in the body, ``C_bn(q) r_n`` (3,) (SPEC 3.1).
 
     q: (4,) quaternion; r_n: (3,) vector in NED (any unit). Written as the homogeneous
@@ -207,7 +208,7 @@ def vector_obs(q, r_n):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def vector_obs_jacobian(q, r_n):  # type: ignore[no-untyped-def]
+def vector_obs_jacobian(q, r_n):
     """Jacobian (3, 4) of :func:`vector_obs` with respect to ``q`` (SPEC 3.1, additive row).
 
     ``[2 (q0 r - v x r), 2 ((v . r) I + v r^T - r v^T + q0 [r]x)]`` with ``v = q[1:]``.
@@ -236,43 +237,83 @@ def vector_obs_jacobian(q, r_n):  # type: ignore[no-untyped-def]
 
 
 @njit(**_JIT)
-def normalization_jacobian(q):  # type: ignore[no-untyped-def]
+def _norm_q(q):
+    """|q| (4,) as numpy.linalg.norm computes it (a BLAS dot)."""
+    qc = np.ascontiguousarray(q)
+    return math.sqrt(np.dot(qc, qc))
+
+
+@njit(**_JIT)
+def _jacobian_of_norm(q, n):
+    J = np.empty((4, 4))
+    for i in range(4):
+        ui = q[i] / n
+        for j in range(4):
+            J[i, j] = ((1.0 if i == j else 0.0) - ui * (q[j] / n)) / n
+    return J
+
+
+@njit(**_JIT)
+def normalization_jacobian(q):
     """Jacobian (4, 4) of ``q / |q|``: ``(I - u u^T) / |q|`` with ``u = q / |q|``.
 
     Applied to the covariance after every normalisation, ``P <- J P J^T`` (SPEC 2.3), so
     that P keeps no variance along the (meaningless) norm direction.
     """
     _check(q, 4, "q: expected shape (4,)")
-    qc = np.ascontiguousarray(q)
-    n = math.sqrt(np.dot(qc, qc))
-    u = qc / n
-    return (np.eye(4) - np.outer(u, u)) / n
+    return _jacobian_of_norm(q, _norm_q(q))
 
 
 @njit(**_JIT)
-def project_normalization(P, q):  # type: ignore[no-untyped-def]
-    """``J P J^T`` (n, n) with ``J = blkdiag(normalization_jacobian(q), I)``: the
-    covariance P (n, n) of a state starting with the quaternion q (4,), carried through
-    ``q -> q/|q|``. Returns a new array."""
-    J = np.eye(P.shape[0])
-    J[:4, :4] = normalization_jacobian(q)
+def _project(P, J4):
+    n = P.shape[0]
+    if n == 4:
+        # the paper's and the traditional EKF's 4x4: plain loops, no BLAS call
+        A = np.empty((4, 4))
+        for i in range(4):
+            for j in range(4):
+                A[i, j] = J4[i, 0] * P[0, j] + J4[i, 1] * P[1, j] + J4[i, 2] * P[2, j] + J4[i, 3] * P[3, j]
+        out = np.empty((4, 4))
+        for i in range(4):
+            for j in range(4):
+                out[i, j] = A[i, 0] * J4[j, 0] + A[i, 1] * J4[j, 1] + A[i, 2] * J4[j, 2] + A[i, 3] * J4[j, 3]
+        return out
+    J = np.eye(n)
+    J[:4, :4] = J4
     return J @ np.ascontiguousarray(P) @ J.T
 
 
 @njit(**_JIT)
-def normalize_state(x, P):  # type: ignore[no-untyped-def]
-    """``q <- q/|q|`` (w >= 0) and ``P <- J P J^T`` symmetrised (SPEC 2.3), for a state x
-    (n,) starting with the quaternion and its covariance P (n, n). Returns new (x, P)."""
-    q = np.ascontiguousarray(x[:4])
-    P2 = project_normalization(P, q)
-    # The sign flip to w >= 0 leaves P unchanged (it is J -> -J on both sides).
-    x2 = x.copy()
-    x2[:4] = q * (math.copysign(1.0, q[0]) / math.sqrt(np.dot(q, q)))
-    return x2, 0.5 * (P2 + P2.T)
+def project_normalization(P, q):
+    """``J P J^T`` (n, n) with ``J = blkdiag(normalization_jacobian(q), I)``: the
+    covariance P (n, n) of a state starting with the quaternion q (4,), carried through
+    ``q -> q/|q|``. Returns a new array. (The products are BLAS calls: the UKF's sigma
+    points depend on their last bits, see core.dense; the 4x4 of the other filters is
+    unrolled.)"""
+    return _project(P, normalization_jacobian(q))
 
 
 @njit(**_JIT)
-def att_cov_from_quat_cov(q, P_qq):  # type: ignore[no-untyped-def]
+def normalize_state(x, P):
+    """``q <- q/|q|`` (w >= 0) and ``P <- J P J^T`` symmetrised (SPEC 2.3), for a state x
+    (n,) starting with the quaternion and its covariance P (n, n). Returns new (x, P)."""
+    n = _norm_q(x[:4])
+    P2 = _project(P, _jacobian_of_norm(x, n))
+    # The sign flip to w >= 0 leaves P unchanged (it is J -> -J on both sides).
+    x2 = x.copy()
+    c = math.copysign(1.0, x[0]) / n
+    for i in range(4):
+        x2[i] = x[i] * c
+    m = P2.shape[0]
+    out = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            out[i, j] = 0.5 * (P2[i, j] + P2[j, i])
+    return x2, out
+
+
+@njit(**_JIT)
+def att_cov_from_quat_cov(q, P_qq):
     """Body-frame attitude-error covariance (3, 3), rad^2, from a quaternion covariance.
 
     ``P_dtheta = 4 Xi(q)^T P_qq Xi(q)`` (SPEC 2.3), since ``dtheta ~ 2 Xi(q)^T (q_true - q)``
@@ -281,11 +322,25 @@ def att_cov_from_quat_cov(q, P_qq):  # type: ignore[no-untyped-def]
     if P_qq.shape != (4, 4):
         raise ValueError("P_qq: expected shape (4, 4)")
     X = Xi(q)
-    return 4.0 * X.T @ np.ascontiguousarray(P_qq) @ X
+    PX = np.zeros((4, 3))
+    for a in range(4):
+        for j in range(3):
+            s = 0.0
+            for b in range(4):
+                s += P_qq[a, b] * X[b, j]
+            PX[a, j] = s
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for a in range(4):
+                s += X[a, i] * PX[a, j]
+            out[i, j] = 4.0 * s
+    return out
 
 
 @njit(**_JIT)
-def quat_cov_from_att_cov(q, P_att):  # type: ignore[no-untyped-def]
+def quat_cov_from_att_cov(q, P_att):
     """Quaternion covariance (4, 4) of a body-frame attitude-error covariance (3, 3), rad^2.
 
     ``P_qq = 1/4 Xi(q) P_att Xi(q)^T`` (rank 3, nothing along ``q``); the inverse of
