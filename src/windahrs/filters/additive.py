@@ -342,8 +342,11 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, 
         x2, P2, nu, nis = ut_update(x, P, S, Y, z, R, wm, wc)
     else:
         q = x[:4].copy()
-        H = np.zeros((3, n))
-        H[:, :4] = vector_obs_jacobian(q, r_n)
+        if n == 4:
+            H = vector_obs_jacobian(q, r_n)
+        else:
+            H = np.zeros((3, n))
+            H[:, :4] = vector_obs_jacobian(q, r_n)
         nu = z - vector_obs(q, r_n)
         x2, P2, nis = kalman_update(x, P, H, nu, R)
     _normalize(x2, P2)

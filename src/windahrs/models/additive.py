@@ -216,23 +216,24 @@ def vector_obs_jacobian(q, r_n):
     """
     _check(q, 4, "q: expected shape (4,)")
     _check(r_n, 3, "r_n: expected shape (3,)")
-    q0 = q[0]
-    v = q[1:]
-    r = r_n
-    vr = v[0] * r[0] + v[1] * r[1] + v[2] * r[2]
-    c = np.empty(3)
-    c[0] = v[1] * r[2] - v[2] * r[1]
-    c[1] = v[2] * r[0] - v[0] * r[2]
-    c[2] = v[0] * r[1] - v[1] * r[0]
-    r_x = np.zeros((3, 3))
-    r_x[0, 1], r_x[0, 2], r_x[1, 2] = -r[2], r[1], -r[0]
-    r_x[1, 0], r_x[2, 0], r_x[2, 1] = r[2], -r[1], r[0]
+    q0, v0, v1, v2 = q[0], q[1], q[2], q[3]
+    r0, r1, r2 = r_n[0], r_n[1], r_n[2]
+    vr = v0 * r0 + v1 * r1 + v2 * r2
     H = np.empty((3, 4))
-    for i in range(3):
-        H[i, 0] = 2.0 * (q0 * r[i] - c[i])
-        for j in range(3):
-            e = vr if i == j else 0.0
-            H[i, 1 + j] = 2.0 * (e + v[i] * r[j] - r[i] * v[j] + q0 * r_x[i, j])
+    # column 0: 2 (q0 r - v x r)
+    H[0, 0] = 2.0 * (q0 * r0 - (v1 * r2 - v2 * r1))
+    H[1, 0] = 2.0 * (q0 * r1 - (v2 * r0 - v0 * r2))
+    H[2, 0] = 2.0 * (q0 * r2 - (v0 * r1 - v1 * r0))
+    # columns 1..3: 2 ((v . r) I + v r^T - r v^T + q0 [r]x)
+    H[0, 1] = 2.0 * vr
+    H[0, 2] = 2.0 * (v0 * r1 - r0 * v1 - q0 * r2)
+    H[0, 3] = 2.0 * (v0 * r2 - r0 * v2 + q0 * r1)
+    H[1, 1] = 2.0 * (v1 * r0 - r1 * v0 + q0 * r2)
+    H[1, 2] = 2.0 * vr
+    H[1, 3] = 2.0 * (v1 * r2 - r1 * v2 - q0 * r0)
+    H[2, 1] = 2.0 * (v2 * r0 - r2 * v0 - q0 * r1)
+    H[2, 2] = 2.0 * (v2 * r1 - r2 * v1 + q0 * r0)
+    H[2, 3] = 2.0 * vr
     return H
 
 
@@ -298,7 +299,7 @@ def normalize_state(x, P):
     """``q <- q/|q|`` (w >= 0) and ``P <- J P J^T`` symmetrised (SPEC 2.3), for a state x
     (n,) starting with the quaternion and its covariance P (n, n). Returns new (x, P)."""
     n = _norm_q(x[:4])
-    P2 = _project(P, _jacobian_of_norm(x, n))
+    P2 = _project(P, _jacobian_of_norm(x, n))  # (n == 4: unrolled)
     # The sign flip to w >= 0 leaves P unchanged (it is J -> -J on both sides).
     x2 = x.copy()
     c = math.copysign(1.0, x[0]) / n
