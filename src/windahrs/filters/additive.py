@@ -605,6 +605,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
         prm[R_B0 : R_B0 + 3] = b
     s = np.zeros(N_S)
     s[S_TGNSS] = -np.inf
+    s[S_TSTATE] = -np.inf  # no sample yet
     flags = np.zeros(N_FLAGS, dtype=np.int64)
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
