@@ -260,8 +260,7 @@ def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
         npts = S.shape[0]
         for p in range(npts):
             # q * Exp((w - b) dt) for a constant rate over the step, normalised
-            d = (w_b - S[p, 4:]) * dt
-            S[p, :4] = _qunit(_qmul(S[p, :4], _qexp(d)))
+            _propagate_point(S, p, w_b, dt)
         # one hemisphere, the centre point's
         c = S[0, :4].copy()
         for p in range(1, npts):
@@ -276,49 +275,36 @@ def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
 
 
 # The UKF's quaternion arithmetic is rotation.quat_mul / quat_exp / quat_rotate_inv
-# operation for operation (see core.dense on why its last bits matter).
+# operation for operation (see core.dense on why its last bits matter), on scalars.
 
 
 @njit(**_JIT)
-def _qmul(p, q):
-    """Hamilton product p * q of (4,) quaternions."""
-    out = np.empty(4)
-    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
-    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
-    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
-    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
-    return out
-
-
-@njit(**_JIT)
-def _qexp(d):
-    """Exp: rotation vector d (3,) rad to a unit quaternion (4,)."""
-    a = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+def _propagate_point(S, p, w_b, dt):
+    """Sigma point p of S (2n+1, 7) in place: ``q <- q * Exp((w_b - b) dt)``, normalised."""
+    d0, d1, d2 = (w_b[0] - S[p, 4]) * dt, (w_b[1] - S[p, 5]) * dt, (w_b[2] - S[p, 6]) * dt
+    a = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     s = 0.5 * sinc(a / (2.0 * np.pi))
-    out = np.empty(4)
-    out[0] = math.cos(0.5 * a)
-    out[1], out[2], out[3] = s * d[0], s * d[1], s * d[2]
-    return out
+    e0, e1, e2, e3 = math.cos(0.5 * a), s * d0, s * d1, s * d2
+    p0, p1, p2, p3 = S[p, 0], S[p, 1], S[p, 2], S[p, 3]
+    q0 = p0 * e0 - p1 * e1 - p2 * e2 - p3 * e3
+    q1 = p0 * e1 + p1 * e0 + p2 * e3 - p3 * e2
+    q2 = p0 * e2 - p1 * e3 + p2 * e0 + p3 * e1
+    q3 = p0 * e3 + p1 * e2 - p2 * e1 + p3 * e0
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    S[p, 0], S[p, 1], S[p, 2], S[p, 3] = q0 / n, q1 / n, q2 / n, q3 / n
 
 
 @njit(**_JIT)
-def _qunit(q):
-    """q / |q| (sign kept)."""
-    return q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-
-
-@njit(**_JIT)
-def _rotate_inv(q, v):
-    """``C_bn v = q^* v q`` for a unit q (4,), v (3,)."""
-    w, u0, u1, u2 = q[0], -q[1], -q[2], -q[3]
+def _observe_point(S, p, v, Y):
+    """Row p of Y (2n+1, 3): ``C_bn v = q^* v q`` at sigma point p's quaternion, normalised."""
+    n = math.sqrt(S[p, 0] * S[p, 0] + S[p, 1] * S[p, 1] + S[p, 2] * S[p, 2] + S[p, 3] * S[p, 3])
+    w, u0, u1, u2 = S[p, 0] / n, -(S[p, 1] / n), -(S[p, 2] / n), -(S[p, 3] / n)
     t0 = 2.0 * (u1 * v[2] - u2 * v[1])
     t1 = 2.0 * (u2 * v[0] - u0 * v[2])
     t2 = 2.0 * (u0 * v[1] - u1 * v[0])
-    out = np.empty(3)
-    out[0] = v[0] + w * t0 + (u1 * t2 - u2 * t1)
-    out[1] = v[1] + w * t1 + (u2 * t0 - u0 * t2)
-    out[2] = v[2] + w * t2 + (u0 * t1 - u1 * t0)
-    return out
+    Y[p, 0] = v[0] + w * t0 + (u1 * t2 - u2 * t1)
+    Y[p, 1] = v[1] + w * t1 + (u2 * t0 - u0 * t2)
+    Y[p, 2] = v[2] + w * t2 + (u0 * t1 - u1 * t0)
 
 
 @njit(**_JIT)
@@ -338,7 +324,7 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, 
         S = sigma_points(x, P, prm[R_SPREAD])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
-            Y[p] = _rotate_inv(_qunit(S[p, :4]), r_n)
+            _observe_point(S, p, r_n, Y)
         x2, P2, nu, nis = ut_update(x, P, S, Y, z, R, wm, wc)
     else:
         q = x[:4].copy()
