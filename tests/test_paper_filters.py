@@ -1,4 +1,5 @@
-"""The additive-quaternion family: models against their numeric twins, the paper's printed
+"""The additive-quaternion family: the shipped (numba) models against their numeric twins,
+the dense Kalman and unscented steps against textbook numpy, the paper's printed
 innovation, the paper's claim on its own scenario, zero-noise exactness, bad input, and
 streaming equal to batch."""
 
@@ -11,18 +12,12 @@ import pytest
 from scipy.linalg import expm
 
 from windahrs.conventions import DEG, UP_N
+from windahrs.core.dense import kalman_update, sigma_points, ut_mean_cov, ut_update, ut_weights
 from windahrs.estimate import Estimate
 from windahrs.filters.base import InitialState, MissingSensorError, merge_events
-from windahrs.filters.paper import (
-    AdditiveUKF,
-    AdditiveUKFParams,
-    PaperEKF,
-    PaperEKFNoWind,
-    PaperNoWindParams,
-    PaperParams,
-    TraditionalEKF,
-    TraditionalEKFParams,
-)
+from windahrs.filters.ekf import TraditionalEKF, TraditionalEKFParams
+from windahrs.filters.paper import PaperEKF, PaperEKFNoWind, PaperNoWindParams, PaperParams
+from windahrs.filters.ukf import AdditiveUKF, AdditiveUKFParams
 from windahrs.flight import Flight, ImuStream, MagStream, Site
 from windahrs.models.additive import (
     Omega,
@@ -31,6 +26,8 @@ from windahrs.models.additive import (
     ekf7_jacobian,
     ekf7_process_noise,
     normalization_jacobian,
+    normalize_state,
+    project_normalization,
     quat_cov_from_att_cov,
     transition_exact,
     transition_picard4,
@@ -178,6 +175,75 @@ def test_attitude_covariance_maps() -> None:
     np.testing.assert_allclose(2.0 * Xi(q).T @ dq, dtheta, rtol=1e-4)
 
 
+@pytest.mark.parametrize("n", [4, 7])
+def test_normalize_state_projects_the_covariance(n: int) -> None:
+    rng = np.random.default_rng(RNG_SEED + 9)
+    x = rng.normal(size=n)
+    x[0] = -abs(x[0])  # the sign flip to w >= 0
+    A = rng.normal(size=(n, n))
+    P = A @ A.T
+    x_in, P_in = x.copy(), P.copy()
+    J = np.eye(n)
+    J[:4, :4] = normalization_jacobian(x[:4])
+    np.testing.assert_allclose(project_normalization(P, x[:4]), J @ P @ J.T, rtol=1e-13, atol=1e-15)
+    x2, P2 = normalize_state(x, P)
+    np.testing.assert_allclose(x2[:4], -x[:4] / np.linalg.norm(x[:4]), rtol=1e-15)
+    np.testing.assert_array_equal(x2[4:], x[4:])
+    np.testing.assert_allclose(P2, J @ P @ J.T, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(P2, P2.T)
+    np.testing.assert_allclose(P2[:4, :4] @ x2[:4], 0.0, atol=1e-12)  # nothing along q
+    np.testing.assert_array_equal(x, x_in)  # arguments untouched: new arrays returned
+    np.testing.assert_array_equal(P, P_in)
+
+
+def test_kalman_update_is_the_joseph_form() -> None:
+    rng = np.random.default_rng(RNG_SEED + 10)
+    n, m = 7, 3
+    x, nu = rng.normal(size=n), rng.normal(size=m)
+    A, B = rng.normal(size=(n, n)), rng.normal(size=(m, m))
+    P, R = A @ A.T, B @ B.T + np.eye(m)
+    H = rng.normal(size=(m, n))
+    P_in = P.copy()
+    x2, P2, nis = kalman_update(x, P, H, nu, R)
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    I_KH = np.eye(n) - K @ H
+    np.testing.assert_allclose(x2, x + K @ nu, rtol=1e-12)
+    np.testing.assert_allclose(P2, I_KH @ P @ I_KH.T + K @ R @ K.T, rtol=1e-10, atol=1e-12)
+    assert nis == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-12)
+    np.testing.assert_array_equal(P, P_in)
+
+
+def test_unscented_update_equals_the_kalman_update_on_a_linear_model() -> None:
+    rng = np.random.default_rng(RNG_SEED + 11)
+    n, m = 7, 3
+    x, z = rng.normal(size=n), rng.normal(size=m)
+    A = rng.normal(size=(n, n))
+    P, R = A @ A.T, 0.5 * np.eye(m)
+    H = rng.normal(size=(m, n))
+    wm, wc, spread = ut_weights(n, 1.0, 0.0, 1.0)
+    X = sigma_points(x, P, spread)
+    # the sigma points carry the mean and covariance exactly
+    x_ut, P_ut = ut_mean_cov(X, wm, wc)
+    np.testing.assert_allclose(x_ut, x, atol=1e-12)
+    np.testing.assert_allclose(P_ut, P, rtol=1e-10, atol=1e-12)
+    x_u, P_u, nu, nis_u = ut_update(x, P, X, X @ H.T, z, R, wm, wc)
+    x_k, P_k, nis_k = kalman_update(x, P, H, z - H @ x, R)
+    np.testing.assert_allclose(nu, z - H @ x, atol=1e-12)
+    np.testing.assert_allclose(x_u, x_k, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(P_u, P_k, rtol=1e-8, atol=1e-10)
+    assert nis_u == pytest.approx(nis_k, rel=1e-9)
+
+
+def test_models_reject_wrong_shapes() -> None:
+    with pytest.raises(ValueError, match="q: expected shape"):
+        Xi(np.zeros(3))
+    with pytest.raises(ValueError, match="r_n: expected shape"):
+        vector_obs(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(4))
+    with pytest.raises(ValueError, match="P_att: expected shape"):
+        quat_cov_from_att_cov(np.array([1.0, 0.0, 0.0, 0.0]), np.eye(4))
+
+
 # --- (b) the paper's printed innovation ---------------------------------------------
 
 
@@ -202,7 +268,7 @@ def test_printed_innovation_is_biased_and_ours_is_not() -> None:
     # stays put; with the printed form every accelerometer innovation would be [0, 0, 1].
     flight = _static_level_flight()
     est = PaperEKFNoWind().run(flight, initial=InitialState(q_nb=q))
-    acc = est.innovations["acc"]
+    acc = est.innovations["accel"]
     assert len(acc.t) == len(flight.imu.t) - 1
     np.testing.assert_allclose(acc.nu, 0.0, atol=1e-12)
     np.testing.assert_allclose(est.innovations["mag"].nu, 0.0, atol=1e-12)
@@ -283,7 +349,7 @@ def test_baselines_on_the_paper_scenario_have_their_shapes() -> None:
         assert (out.gyro_bias_b is not None) == isinstance(est, AdditiveUKF)
         np.testing.assert_allclose(np.linalg.norm(out.q_nb, axis=1), 1.0, atol=1e-12)
         assert (out.q_nb[:, 0] >= 0).all()
-        assert set(out.innovations) >= {"acc", "mag"}
+        assert set(out.innovations) >= {"accel", "mag"}
         assert all(inn.accepted.all() for inn in out.innovations.values())
         assert _rms(total[last]) < 6.0
 
@@ -426,8 +492,15 @@ def test_streaming_equals_batch(est) -> None:
     np.testing.assert_array_equal(st.cov, batch.cov[-1])
     if batch.gyro_bias_b is not None:
         np.testing.assert_array_equal(st.gyro_bias_b, batch.gyro_bias_b[-1])
+    assert list(s.innovations()) == list(batch.innovations)
     for sensor, inn in s.innovations().items():
         np.testing.assert_array_equal(inn.nu, batch.innovations[sensor].nu)
+        np.testing.assert_array_equal(inn.nis, batch.innovations[sensor].nis)
+    assert s.skipped == batch.skipped
+    if isinstance(est, PaperEKF):
+        assert {f"unfused_{k}": v for k, v in s.unfused.items()} == {
+            k: v for k, v in batch.meta.items() if k.startswith("unfused_")
+        }
 
 
 def test_nan_samples_are_skipped_and_counted() -> None:

@@ -20,8 +20,8 @@ __all__ = ["REGISTRY", "make_estimator", "names"]
 REGISTRY: dict[str, tuple[str, str, str]] = {
     "paper": ("windahrs.filters.paper", "PaperEKF", "the paper's EKF, faithful, with air-flow direction"),
     "paper-nowind": ("windahrs.filters.paper", "PaperEKFNoWind", "the paper's EKF without the air data"),
-    "ekf": ("windahrs.filters.paper", "TraditionalEKF", "traditional accelerometer+magnetometer EKF"),
-    "ukf": ("windahrs.filters.paper", "AdditiveUKF", "additive-quaternion UKF"),
+    "ekf": ("windahrs.filters.ekf", "TraditionalEKF", "traditional accelerometer+magnetometer EKF"),
+    "ukf": ("windahrs.filters.ukf", "AdditiveUKF", "additive-quaternion UKF"),
     "ekf7": ("windahrs.filters.ekf7", "Ekf7", "additive quaternion + gyro bias EKF, Q from gyro noise"),
     "ekf10": ("windahrs.filters.ekf7", "Ekf10", "ekf7 plus wind states fusing air data"),
     "mekf": ("windahrs.filters.eskf", "Mekf", "error-state EKF, attitude + gyro bias"),

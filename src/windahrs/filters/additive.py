@@ -1,0 +1,841 @@
+"""The compiled event loop of the additive-quaternion filters: [paper], [paper-nowind]
+(:mod:`windahrs.filters.paper`), [ekf] (:mod:`windahrs.filters.ekf`) and [ukf]
+(:mod:`windahrs.filters.ukf`).
+
+They share everything but their propagation and noise: a state ``x`` starting with the
+quaternion ``q_nb`` (4,) (the UKF appends the gyro bias), its covariance ``P`` on those
+parameters, initialisation (fixed, or TRIAD from the first accelerometer and
+magnetometer samples), the magnetometer reference, sequential 3-row vector updates with
+the innovation ``z - h(x)`` (SPEC 2.3), normalisation of ``q`` after every propagation
+and update with the covariance projected by the normalisation Jacobian, and the paper's
+air-flow row. The model functions are :mod:`windahrs.models.additive`, the Kalman and
+unscented steps :mod:`windahrs.core.dense`; this module only sequences them.
+
+One numba function, :func:`run_events`, runs the merged events of a flight (base.replay
+compiled, with no Python per sample); :class:`AdditiveStreamer` feeds it one event at a
+time without recording, so a streamed flight equals its batch run bit for bit. The
+wind the paper's air row needs is evaluated on the Python side (a provider ``t ->
+wind_n``) and travels in columns 3..5 of the air event's values row. With
+``NUMBA_DISABLE_JIT=1`` the same source runs as plain (slow) Python: the readable path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, NamedTuple, TypeVar
+
+import numpy as np
+from numba import njit, objmode
+from numpy.typing import NDArray
+
+from windahrs.core.dense import (
+    kalman_update,
+    propagate_cov,
+    sigma_points,
+    ut_mean_cov,
+    ut_update,
+    ut_weights,
+)
+from windahrs.estimate import Estimate, Innovations
+from windahrs.filters.base import (
+    EVENT_AIR,
+    EVENT_GNSS,
+    EVENT_IMU,
+    EVENT_MAG,
+    Estimator,
+    InitialState,
+    StateView,
+    Streamer,
+    merge_events,
+)
+from windahrs.filters.base import triad as base_triad
+from windahrs.flight import Flight, Site
+from windahrs.models.additive import (
+    Xi,
+    att_cov_from_quat_cov,
+    ekf7_process_noise,
+    normalize_state,
+    project_normalization,
+    quat_cov_from_att_cov,
+    sinc,
+    transition_exact,
+    transition_picard4,
+    vector_obs,
+    vector_obs_jacobian,
+)
+
+__all__ = [
+    "KIND_EKF",
+    "KIND_PAPER",
+    "KIND_UKF",
+    "SENSORS",
+    "AdditiveEstimator",
+    "AdditiveStreamer",
+    "KernelConfig",
+    "KernelState",
+    "WindProvider",
+    "make_state",
+    "unfused_counts",
+    "wind_at",
+    "run_events",
+]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+#: The wind (velocity of the air, NED, m/s) at a time (s): what the paper's filter "knows".
+WindProvider = Callable[[float], F64]
+
+_JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
+
+#: Propagation and noise: the paper's (Picard-4, constant Q and R), the traditional EKF's
+#: (exact transition, noise from the sensor densities), the additive UKF's.
+KIND_PAPER, KIND_EKF, KIND_UKF = 0, 1, 2
+
+#: Innovation logs (the Estimate's ``innovations`` keys, as filters.compiled.SENSORS).
+SENSORS = ("accel", "mag", "air")
+INN_ACCEL, INN_MAG, INN_AIR = 0, 1, 2
+
+#: Below this air-relative speed (m/s) the air-flow direction is noise, so the row is not
+#: fused (counted).
+MIN_AIR_SPEED = 0.5
+
+#: Reasons a sample was not fused, in the order of the counters.
+UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
+
+# cfg (int64): fixed for a run
+C_KIND, C_N, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = 0, 1, 2, 3, 4, 5
+N_CFG = 6
+# prm (float64): parameters
+R_P0_VAR = 0  # paper: initial variance per quaternion parameter
+R_ATT0_VAR = 1  # initial attitude variance per axis, rad^2
+R_BG0_VAR = 2  # initial gyro-bias variance per axis
+R_Q_VAR = 3  # paper: process variance per quaternion parameter per step
+R_ACC_VAR = 4  # paper: accelerometer variance per component
+R_MAG_VAR = 5  # paper: magnetometer variance per component
+R_AIR_VAR = 6  # paper: air-flow variance per component
+R_GNSS_AGE = 7  # paper: oldest GNSS velocity the air row uses, s
+R_GYRO = 8  # gyro white-noise density
+R_ACC_NOISE = 9  # accelerometer white-noise density
+R_ACC_UNIT2 = 10  # extra variance of the normalised accelerometer
+R_MAG_NOISE = 11  # magnetometer noise per sample, T
+R_MAG_UNIT2 = 12  # extra variance of the normalised magnetometer
+R_BG_RW = 13  # gyro-bias random-walk density
+R_GRAV = 14  # |g|, m/s^2
+R_SPREAD = 15  # UKF: n + lambda
+R_SITE_MAG = 16  # (3,) the site's field, or 0
+R_QSTART = 19  # (4,) fixed initial attitude
+R_B0 = 23  # (3,) initial gyro bias
+N_PRM = 26
+# s (float64): the remembered samples
+S_TIMU, S_TSTATE, S_DT = 0, 1, 2
+S_F = 3  # (3,) last specific force
+S_MAGREF = 6  # (3,) unit nav-frame field reference
+S_MAGNORM = 9
+S_V = 10  # (3,) last GNSS velocity
+S_TGNSS = 13
+N_S = 14
+# flags (int64)
+F_READY, F_TIMU, F_F, F_MAGREF, F_V = 0, 1, 2, 3, 4
+K_SKIP = 5  # (4,) NaN samples skipped: imu, mag, gnss, air
+K_UNF = 9  # (4,) samples not fused, UNFUSED order
+F_NLOG = 13  # rows logged
+N_FLAGS = 14
+
+_UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer's reading
+
+
+class KernelState(NamedTuple):
+    """Everything a running filter needs, in arrays: cfg (N_CFG,) int64, prm (N_PRM,),
+    s (N_S,) remembered samples, flags (N_FLAGS,) int64, x (n,), P (n, n), wm and wc
+    (2n+1,) unscented weights (UKF; (1,) otherwise), inn (cap, 5) log rows [t, nu (3),
+    nis], inn_id (cap,) int64 their sensor (SENSORS index)."""
+
+    cfg: I64
+    prm: F64
+    s: F64
+    flags: I64
+    x: F64
+    P: F64
+    wm: F64
+    wc: F64
+    inn: F64
+    inn_id: I64
+
+
+# --- compiled kernels ---------------------------------------------------------------------
+
+
+@njit(**_JIT)
+def _qnormalize(q):
+    """rotation.quat_normalize: unit, ``w >= 0``."""
+    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    sign = -1.0 if q[0] < 0.0 else 1.0
+    out = np.empty(4)
+    for i in range(4):
+        out[i] = q[i] * sign / n
+    return out
+
+
+@njit(**_JIT)
+def _norm3(v):
+    """|v| as numpy.linalg.norm computes it (the UKF is sensitive to its last bit)."""
+    c = np.ascontiguousarray(v)
+    return math.sqrt(np.dot(c, c))
+
+
+def _triad_py(f_b: F64, mag_b: F64, use_mag: bool, mag_n: F64, use_ref: bool) -> F64:
+    q = base_triad(f_b, mag_b if use_mag else None, mag_n if use_ref else None)
+    return np.ascontiguousarray(q, dtype=np.float64)
+
+
+@njit(**_JIT)
+def triad(f_b, mag_b, use_mag, mag_n, use_ref):
+    """base.triad, called from compiled code (once per run, and for the states recorded
+    before initialisation): q_nb (4,) from f_b (3,) and, when use_mag, mag_b (3,) against
+    mag_n (3,)'s declination when use_ref. Its arcsin and arctan2 are numpy's, whose last
+    bits differ from the C library's (and the UKF's sigma points depend on them)."""
+    with objmode(q="float64[::1]"):
+        q = _triad_py(f_b, mag_b, use_mag, mag_n, use_ref)
+    return q
+
+
+@njit(**_JIT)
+def _start(cfg, prm, flags, x, P, q_raw):
+    """Initial state and covariance at the attitude q_raw (4,)."""
+    q = _qnormalize(q_raw)
+    n = cfg[C_N]
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = 0.0
+    if cfg[C_KIND] == KIND_PAPER and cfg[C_P0_ISO] == 1:
+        for i in range(4):
+            P[i, i] = prm[R_P0_VAR]
+    else:
+        P[:4, :4] = quat_cov_from_att_cov(q, prm[R_ATT0_VAR] * np.eye(3))
+    x[:4] = q
+    for i in range(4, n):
+        x[i] = prm[R_B0 + i - 4]
+        P[i, i] = prm[R_BG0_VAR]
+    flags[F_READY] = 1
+
+
+@njit(**_JIT)
+def _matvec4(M, v):
+    out = np.empty(4)
+    for i in range(4):
+        out[i] = M[i, 0] * v[0] + M[i, 1] * v[1] + M[i, 2] * v[2] + M[i, 3] * v[3]
+    return out
+
+
+@njit(**_JIT)
+def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
+    """Propagate (x, P) in place over dt with the gyro sample w_b (3,)."""
+    kind = cfg[C_KIND]
+    if kind == KIND_PAPER:
+        # The paper's filter has no bias state: the raw gyro drives eq. 6.
+        Phi = transition_picard4(w_b * dt)
+        x[:] = _matvec4(Phi, x)
+        P[:, :] = propagate_cov(Phi, P, prm[R_Q_VAR] * np.eye(4))
+    elif kind == KIND_EKF:
+        Phi = transition_exact(w_b * dt)
+        q = _matvec4(Phi, x)
+        X = Xi(q)
+        x[:] = q
+        # SPEC 2.3 Q_d,qq with sigma_b = 0: the gyro white noise, rank 3.
+        c = prm[R_GYRO] ** 2 * dt / 4.0
+        Q = np.empty((4, 4))
+        for i in range(4):
+            for j in range(4):
+                Q[i, j] = c * (X[i, 0] * X[j, 0] + X[i, 1] * X[j, 1] + X[i, 2] * X[j, 2])
+        P[:, :] = propagate_cov(Phi, P, Q)
+    else:
+        S = sigma_points(x, P, prm[R_SPREAD])
+        npts = S.shape[0]
+        for p in range(npts):
+            # q * Exp((w - b) dt) for a constant rate over the step, normalised
+            _propagate_point(S, p, w_b, dt)
+        # one hemisphere, the centre point's
+        c = S[0, :4].copy()
+        for p in range(1, npts):
+            if S[p, 0] * c[0] + S[p, 1] * c[1] + S[p, 2] * c[2] + S[p, 3] * c[3] < 0.0:
+                S[p, :4] = -S[p, :4]
+        xm, Pm = ut_mean_cov(S, wm, wc)
+        Pm = project_normalization(Pm, xm[:4])
+        q = np.ascontiguousarray(xm[:4])
+        xm[:4] = q / math.sqrt(np.dot(q, q))
+        x[:] = xm
+        P[:, :] = Pm + ekf7_process_noise(xm[:4].copy(), prm[R_GYRO], prm[R_BG_RW], dt)
+
+
+# The UKF's quaternion arithmetic is rotation.quat_mul / quat_exp / quat_rotate_inv
+# operation for operation (see core.dense on why its last bits matter), on scalars.
+
+
+@njit(**_JIT)
+def _propagate_point(S, p, w_b, dt):
+    """Sigma point p of S (2n+1, 7) in place: ``q <- q * Exp((w_b - b) dt)``, normalised."""
+    d0, d1, d2 = (w_b[0] - S[p, 4]) * dt, (w_b[1] - S[p, 5]) * dt, (w_b[2] - S[p, 6]) * dt
+    a = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    s = 0.5 * sinc(a / (2.0 * np.pi))
+    e0, e1, e2, e3 = math.cos(0.5 * a), s * d0, s * d1, s * d2
+    p0, p1, p2, p3 = S[p, 0], S[p, 1], S[p, 2], S[p, 3]
+    q0 = p0 * e0 - p1 * e1 - p2 * e2 - p3 * e3
+    q1 = p0 * e1 + p1 * e0 + p2 * e3 - p3 * e2
+    q2 = p0 * e2 - p1 * e3 + p2 * e0 + p3 * e1
+    q3 = p0 * e3 + p1 * e2 - p2 * e1 + p3 * e0
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    S[p, 0], S[p, 1], S[p, 2], S[p, 3] = q0 / n, q1 / n, q2 / n, q3 / n
+
+
+@njit(**_JIT)
+def _observe_point(S, p, v, Y):
+    """Row p of Y (2n+1, 3): ``C_bn v = q^* v q`` at sigma point p's quaternion, normalised."""
+    n = math.sqrt(S[p, 0] * S[p, 0] + S[p, 1] * S[p, 1] + S[p, 2] * S[p, 2] + S[p, 3] * S[p, 3])
+    w, u0, u1, u2 = S[p, 0] / n, -(S[p, 1] / n), -(S[p, 2] / n), -(S[p, 3] / n)
+    t0 = 2.0 * (u1 * v[2] - u2 * v[1])
+    t1 = 2.0 * (u2 * v[0] - u0 * v[2])
+    t2 = 2.0 * (u0 * v[1] - u1 * v[0])
+    Y[p, 0] = v[0] + w * t0 + (u1 * t2 - u2 * t1)
+    Y[p, 1] = v[1] + w * t1 + (u2 * t0 - u0 * t2)
+    Y[p, 2] = v[2] + w * t2 + (u0 * t1 - u1 * t0)
+
+
+@njit(**_JIT)
+def _normalize(x, P):
+    x2, P2 = normalize_state(x, P)
+    x[:] = x2
+    P[:, :] = P2
+
+
+@njit(**_JIT)
+def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, r_n, var):
+    """Fuse ``z = C_bn r_n + v``, v ~ N(0, var I3): EKF (Joseph form) or unscented update,
+    normalisation, one log row."""
+    n = cfg[C_N]
+    R = var * np.eye(3)
+    if cfg[C_KIND] == KIND_UKF:
+        S = sigma_points(x, P, prm[R_SPREAD])
+        Y = np.empty((S.shape[0], 3))
+        for p in range(S.shape[0]):
+            _observe_point(S, p, r_n, Y)
+        x2, P2, nu, nis = ut_update(x, P, S, Y, z, R, wm, wc)
+    else:
+        q = x[:4].copy()
+        if n == 4:
+            H = vector_obs_jacobian(q, r_n)
+        else:
+            H = np.zeros((3, n))
+            H[:, :4] = vector_obs_jacobian(q, r_n)
+        nu = z - vector_obs(q, r_n)
+        x2, P2, nis = kalman_update(x, P, H, nu, R)
+    _normalize(x2, P2)
+    x[:] = x2
+    P[:, :] = P2
+    k = flags[F_NLOG]
+    inn[k, 0] = t
+    inn[k, 1:4] = nu
+    inn[k, 4] = nis
+    inn_id[k] = sensor
+    flags[F_NLOG] = k + 1
+    s[S_TSTATE] = t
+
+
+@njit(**_JIT)
+def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):
+    """IMU sample: gyro w_b (3,) rad/s, specific force f_b (3,) m/s^2 at t s."""
+    first = flags[F_TIMU] == 0
+    dt = 0.0 if first else t - s[S_TIMU]
+    s[S_TIMU] = t
+    flags[F_TIMU] = 1
+    s[S_F : S_F + 3] = f_b
+    flags[F_F] = 1
+    s[S_TSTATE] = t
+    if first:
+        # The first sample only initialises: its rate belongs to the interval before it.
+        if cfg[C_QSTART] == 1:
+            _start(cfg, prm, flags, x, P, prm[R_QSTART : R_QSTART + 4])
+        elif cfg[C_HAS_MAG] == 0:
+            _start(cfg, prm, flags, x, P, triad(f_b, f_b, False, f_b, False))
+        return
+    if flags[F_READY] == 0:
+        return  # TRIAD still waits for its magnetometer sample
+    s[S_DT] = dt
+    _predict(cfg, prm, x, P, wm, wc, w_b, dt)
+    _normalize(x, P)
+    if cfg[C_KIND] == KIND_PAPER:
+        var = prm[R_ACC_VAR]
+    else:
+        # Per-sample noise sigma_c / sqrt(dt) (Kalibr), divided by |f| = g for the unit vector.
+        sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_GRAV]
+        var = sw * sw + prm[R_ACC_UNIT2]
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_ACCEL, t, f_b / _norm3(f_b), _UP_N, var)
+
+
+@njit(**_JIT)
+def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):
+    """Magnetometer sample mag_b (3,) T at t s."""
+    if flags[F_F] == 0:
+        flags[K_UNF + 0] += 1  # mag_before_imu
+        return
+    norm = _norm3(mag_b)
+    f_b = s[S_F : S_F + 3]
+    if flags[F_MAGREF] == 0:
+        # Unknown site field: the horizontal field is north, the dip is measured here
+        # against the accelerometer's down direction.
+        down = -f_b / _norm3(f_b)
+        c = np.dot(np.ascontiguousarray(mag_b), down) / norm
+        c = min(max(c, -1.0), 1.0)
+        s[S_MAGREF] = math.sqrt(1.0 - c * c)
+        s[S_MAGREF + 1] = 0.0
+        s[S_MAGREF + 2] = c
+        s[S_MAGNORM] = norm
+        flags[F_MAGREF] = 1
+    if flags[F_READY] == 0:
+        site = prm[R_SITE_MAG : R_SITE_MAG + 3]
+        q0 = triad(f_b, mag_b, True, site, _norm3(site) > 0.0)
+        _start(cfg, prm, flags, x, P, q0)
+        return  # this sample made the initial attitude; fusing it again would reuse it
+    if cfg[C_KIND] == KIND_PAPER:
+        var = prm[R_MAG_VAR]
+    else:
+        r = prm[R_MAG_NOISE] / s[S_MAGNORM]
+        var = r * r + prm[R_MAG_UNIT2]
+    r_n = s[S_MAGREF : S_MAGREF + 3].copy()
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_MAG, t, mag_b / norm, r_n, var)
+
+
+@njit(**_JIT)
+def step_gnss(s, flags, t, v_n):
+    """GNSS velocity v_n (3,) m/s NED at t s: remembered for the air-flow row."""
+    s[S_V : S_V + 3] = v_n
+    s[S_TGNSS] = t
+    flags[F_V] = 1
+
+
+@njit(**_JIT)
+def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n):
+    """Air data at t s: the air-flow direction from the vanes (aoa, beta rad) against
+    ``u = (V_n - W_n)/|V_n - W_n|``, V_n the latest GNSS velocity, wind_n (3,) the
+    provider's wind (SPEC 3.4.3)."""
+    if cfg[C_USE_AIR] == 0:
+        return
+    if not (math.isfinite(aoa) and math.isfinite(beta)):
+        flags[K_SKIP + 3] += 1
+        return
+    if flags[F_READY] == 0:
+        flags[K_UNF + 1] += 1  # air_before_init
+        return
+    if flags[F_V] == 0 or t - s[S_TGNSS] > prm[R_GNSS_AGE]:
+        flags[K_UNF + 2] += 1  # air_no_gnss
+        return
+    u = s[S_V : S_V + 3] - wind_n
+    speed = _norm3(u)
+    if speed < MIN_AIR_SPEED:
+        flags[K_UNF + 3] += 1  # air_slow
+        return
+    z = np.empty(3)  # rotation.air_direction
+    z[0] = math.cos(aoa) * math.cos(beta)
+    z[1] = math.sin(beta)
+    z[2] = math.sin(aoa) * math.cos(beta)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_AIR, t, z, u / speed, prm[R_AIR_VAR])
+
+
+@njit(**_JIT)
+def record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov):
+    """Write the current estimate into row k: q_nb (4,) into out_q, the gyro bias (UKF)
+    into out_bg, the reported covariance into out_cov (paper: 4x4 on q; ekf: 3x3 attitude
+    error; ukf: 6x6 attitude error and bias, ``T P T^T``, ``T = blkdiag(2 Xi^T, I)``)."""
+    if flags[F_READY] == 1:
+        out_q[k] = x[:4]
+    elif flags[F_F] == 1:
+        f_b = s[S_F : S_F + 3]
+        out_q[k] = triad(f_b, f_b, False, f_b, False)
+    else:
+        out_q[k] = 0.0
+        out_q[k, 0] = 1.0
+    kind = cfg[C_KIND]
+    if kind == KIND_PAPER:
+        out_cov[k] = P
+        return
+    q = x[:4].copy()
+    out_cov[k, :3, :3] = att_cov_from_quat_cov(q, P[:4, :4])
+    if kind == KIND_UKF:
+        X = Xi(q)
+        for i in range(3):
+            out_bg[k, i] = x[4 + i]
+            for j in range(3):
+                out_cov[k, 3 + i, 3 + j] = P[4 + i, 4 + j]
+                c = 0.0  # (2 Xi^T P_qb)[i, j]
+                for a in range(4):
+                    c += 2.0 * X[a, i] * P[a, 4 + j]
+                out_cov[k, i, 3 + j] = c
+                out_cov[k, 3 + j, i] = c
+
+
+@njit(**_JIT)
+def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
+    """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6);
+    an air row carries the wind in columns 3..5), skip and count NaN samples, and (rec)
+    record for IMU sample k the state after every event with t <= t_imu[k]."""
+    cfg, prm, s, flags, x, P, wm, wc, inn, inn_id = st
+    k = -1
+    n_ev = t_ev.shape[0]
+    for i in range(n_ev):
+        kind = kinds[i]
+        t = t_ev[i]
+        row = vals[i]
+        if kind == EVENT_IMU:
+            k += 1
+            ok = True
+            for a in range(6):
+                if not math.isfinite(row[a]):
+                    ok = False
+            if ok:
+                step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy(), row[3:6].copy())
+            else:
+                flags[K_SKIP] += 1
+        elif kind == EVENT_MAG:
+            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
+                step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy())
+            else:
+                flags[K_SKIP + 1] += 1
+        elif kind == EVENT_GNSS:
+            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
+                step_gnss(s, flags, t, row[:3].copy())
+            else:
+                flags[K_SKIP + 2] += 1
+        elif kind == EVENT_AIR:
+            if math.isfinite(row[0]):
+                step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[1], row[2], row[3:6].copy())
+            else:
+                flags[K_SKIP + 3] += 1
+        if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
+            record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov)
+
+
+# --- Python side: configuration, streamer, estimator base ---------------------------------
+
+
+@dataclass(frozen=True)
+class KernelConfig:
+    """What distinguishes the four filters, encoded once per run. kind: KIND_*; n: state
+    size (4, or 7 with the gyro bias); q_start: fixed initial attitude (4,) or None
+    (TRIAD); use_air: fuse the air-flow row; p0_iso: the paper's ``P0 = p0_var I4``;
+    the rest as in the filters' parameter records (variances and densities in SI)."""
+
+    kind: int
+    n: int = 4
+    q_start: F64 | None = None
+    use_air: bool = False
+    p0_iso: bool = False
+    p0_var: float = 0.0
+    att0_var: float = 0.0
+    bg0_var: float = 0.0
+    b0: F64 | None = None
+    process_var: float = 0.0
+    acc_var: float = 0.0
+    mag_var: float = 0.0
+    air_var: float = 0.0
+    gnss_max_age: float = 0.0
+    gyro_noise: float = 0.0
+    accel_noise: float = 0.0
+    accel_sigma_unit: float = 0.0
+    mag_noise: float = 0.0
+    mag_sigma_unit: float = 0.0
+    gyro_bias_rw: float = 0.0
+    ut: tuple[float, float, float] = (1.0, 0.0, 1.0)  # alpha, beta, kappa
+
+
+def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> KernelState:
+    """A fresh KernelState for the filter c at the site; has: the streams that will be fed;
+    cap: innovation log rows (at most one per event)."""
+    cfg = np.zeros(N_CFG, dtype=np.int64)
+    cfg[C_KIND] = c.kind
+    cfg[C_N] = c.n
+    cfg[C_HAS_MAG] = int("mag" in has)
+    cfg[C_QSTART] = int(c.q_start is not None)
+    cfg[C_USE_AIR] = int(c.use_air)
+    cfg[C_P0_ISO] = int(c.p0_iso)
+    prm = np.zeros(N_PRM)
+    prm[R_P0_VAR] = c.p0_var
+    prm[R_ATT0_VAR] = c.att0_var
+    prm[R_BG0_VAR] = c.bg0_var
+    prm[R_Q_VAR] = c.process_var
+    prm[R_ACC_VAR] = c.acc_var
+    prm[R_MAG_VAR] = c.mag_var
+    prm[R_AIR_VAR] = c.air_var
+    prm[R_GNSS_AGE] = c.gnss_max_age
+    prm[R_GYRO] = c.gyro_noise
+    prm[R_ACC_NOISE] = c.accel_noise
+    prm[R_ACC_UNIT2] = c.accel_sigma_unit**2
+    prm[R_MAG_NOISE] = c.mag_noise
+    prm[R_MAG_UNIT2] = c.mag_sigma_unit**2
+    prm[R_BG_RW] = c.gyro_bias_rw
+    prm[R_GRAV] = site.gravity
+    if c.q_start is not None:
+        q = np.asarray(c.q_start, dtype=np.float64)
+        if q.shape != (4,):
+            raise ValueError(f"initial.q_nb: expected shape (4,), found {q.shape}")
+        prm[R_QSTART : R_QSTART + 4] = q
+    if c.b0 is not None:
+        b = np.asarray(c.b0, dtype=np.float64)
+        if b.shape != (3,):
+            raise ValueError(f"initial.gyro_bias_b: expected shape (3,), found {b.shape}")
+        prm[R_B0 : R_B0 + 3] = b
+    s = np.zeros(N_S)
+    s[S_TGNSS] = -np.inf
+    s[S_TSTATE] = -np.inf  # no sample yet
+    flags = np.zeros(N_FLAGS, dtype=np.int64)
+    if site.mag_n is not None:
+        prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
+        norm = float(np.linalg.norm(site.mag_n))
+        s[S_MAGNORM] = norm
+        s[S_MAGREF : S_MAGREF + 3] = site.mag_n / norm
+        flags[F_MAGREF] = 1
+    if c.kind == KIND_UKF:
+        wm, wc, spread = ut_weights(c.n, *c.ut)
+        prm[R_SPREAD] = spread
+    else:
+        wm, wc = np.ones(1), np.ones(1)
+    x = np.zeros(c.n)
+    x[0] = 1.0
+    return KernelState(
+        cfg=cfg,
+        prm=prm,
+        s=s,
+        flags=flags,
+        x=x,
+        P=np.eye(c.n),
+        wm=wm,
+        wc=wc,
+        inn=np.empty((cap, 5)),
+        inn_id=np.zeros(cap, dtype=np.int64),
+    )
+
+
+def _innovations(st: KernelState) -> dict[str, Innovations]:
+    """The log as Estimate innovations, keyed in the order sensors first logged."""
+    m = int(st.flags[F_NLOG])
+    ids, rows = st.inn_id[:m], st.inn[:m]
+    out: dict[str, Innovations] = {}
+    for sid in dict.fromkeys(ids.tolist()):
+        sel = ids == sid
+        out[SENSORS[sid]] = Innovations(
+            t=rows[sel, 0].copy(),
+            nu=rows[sel, 1:4].copy(),
+            nis=rows[sel, 4].copy(),
+            accepted=np.ones(int(sel.sum()), dtype=bool),
+        )
+    return out
+
+
+def unfused_counts(st: KernelState) -> dict[str, int]:
+    """Samples not fused, by reason (UNFUSED), those counted only."""
+    c = st.flags[K_UNF : K_UNF + 4]
+    return {r: int(v) for r, v in zip(UNFUSED, c, strict=True) if v > 0}
+
+
+_STREAMS = ("imu", "mag", "gnss", "air")
+
+
+class AdditiveStreamer(Streamer):
+    """An additive-quaternion filter fed sample by sample through the same compiled loop
+    as the batch run (so a flight streamed equals its batch estimate)."""
+
+    def __init__(
+        self,
+        filter_name: str,
+        config: KernelConfig,
+        site: Site,
+        has: frozenset[str],
+        labels: tuple[str, ...],
+        wind: WindProvider | None = None,
+    ) -> None:
+        super().__init__(filter_name)
+        self._c = config
+        self._labels = labels
+        self._wind = wind
+        self._st = make_state(config, site, has, 256)
+        self._t = np.zeros(1)
+        self._kind = np.zeros(1, dtype=np.int64)
+        self._row = np.full((1, 6), np.nan)
+        d = len(labels)
+        self._q, self._bg, self._cov = np.empty((1, 4)), np.empty((1, 3)), np.empty((1, d, d))
+
+    @property
+    def unfused(self) -> dict[str, int]:
+        """Samples that could not be fused (no reference yet, no GNSS, ...), by reason."""
+        return unfused_counts(self._st)
+
+    def _step(self, kind: int, t: float) -> None:
+        st = self._st
+        if st.flags[F_NLOG] >= len(st.inn_id):  # an event logs at most one row
+            cap = 2 * len(st.inn_id)
+            inn, ids = np.empty((cap, 5)), np.zeros(cap, dtype=np.int64)
+            inn[: len(st.inn)] = st.inn
+            ids[: len(st.inn_id)] = st.inn_id
+            self._st = st = st._replace(inn=inn, inn_id=ids)
+        self._t[0] = t
+        self._kind[0] = kind
+        run_events(st, self._t, self._kind, self._row, self._q, self._bg, self._cov, False)
+
+    def _imu(self, t: float, w_b: F64, f_b: F64) -> None:
+        self._row[0, :3] = w_b
+        self._row[0, 3:6] = f_b
+        self._step(EVENT_IMU, t)
+
+    def _mag(self, t: float, mag_b: F64) -> None:
+        self._row[0, :3] = mag_b
+        self._step(EVENT_MAG, t)
+
+    def _gnss(self, t: float, v_n: F64) -> None:
+        self._row[0, :3] = v_n
+        self._step(EVENT_GNSS, t)
+
+    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
+        self._row[0, :3] = (tas, aoa, sideslip)
+        self._row[0, 3:6] = np.nan if self._wind is None else self._wind(t)
+        skipped = int(self._st.flags[K_SKIP + 3])
+        self._step(EVENT_AIR, t)
+        self.skipped["air"] += int(self._st.flags[K_SKIP + 3]) - skipped  # vanes NaN
+
+    def innovations(self) -> dict[str, Innovations]:
+        return _innovations(self._st)
+
+    @property
+    def state(self) -> StateView:
+        st = self._st
+        record(st.cfg, st.s, st.flags, st.x, st.P, 0, self._q, self._bg, self._cov)
+        return StateView(
+            t=float(st.s[S_TSTATE]),
+            q_nb=self._q[0].copy(),
+            gyro_bias_b=self._bg[0].copy() if self._c.n == 7 else None,
+            v_n=None,
+            wind_n=None,
+            cov=self._cov[0].copy(),
+            state_labels=self._labels,
+        )
+
+
+class AdditiveEstimator(Estimator):
+    """Base of the four additive-quaternion estimators: ``run`` in one compiled loop,
+    ``streamer`` over the same loop. Subclasses give :meth:`config` and ``labels``."""
+
+    #: labels of the reported covariance
+    labels: ClassVar[tuple[str, ...]]
+    params: Any
+
+    def config(self, initial: InitialState | None) -> KernelConfig:
+        """The kernel encoding of this filter's parameters (and the initial state)."""
+        raise NotImplementedError
+
+    def _wind_for(self, flight: Flight) -> WindProvider | None:
+        """The wind provider for a batch run (only the paper's filter has one)."""
+        return None
+
+    def streamer(
+        self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
+    ) -> AdditiveStreamer:
+        """A streaming instance; ``has`` empty means every stream the filter uses."""
+        return AdditiveStreamer(self.name, self.config(initial), site, has or self.uses, self.labels)
+
+    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+        """Estimate the whole flight in one compiled loop (equal to streaming it)."""
+        self.check(flight)
+        wind = self._wind_for(flight)
+        has = self.uses & frozenset(s for s in _STREAMS if getattr(flight, s) is not None)
+        t_ev, kinds, vals = merge_events(flight, has)
+        vals = np.ascontiguousarray(vals)
+        if wind is not None:
+            air = np.flatnonzero(kinds == EVENT_AIR)
+            vals[air, 3:6] = wind_at(wind, t_ev[air])
+        c = self.config(initial)
+        st = make_state(c, flight.site, has, len(t_ev))
+        N, d = len(flight.imu.t), len(self.labels)
+        q, cov = np.empty((N, 4)), np.empty((N, d, d))
+        bg = np.empty((N, 3)) if c.n == 7 else np.empty((0, 3))
+        run_events(st, t_ev, kinds, vals, q, bg, cov, True)
+        skipped = st.flags[K_SKIP : K_SKIP + 4]
+        return Estimate(
+            filter=self.label,
+            t=flight.imu.t.copy(),
+            q_nb=q,
+            gyro_bias_b=bg if c.n == 7 else None,
+            v_n=None,
+            wind_n=None,
+            cov=cov,
+            state_labels=self.labels,
+            innovations=_innovations(st),
+            skipped={s: int(v) for s, v in zip(_STREAMS, skipped, strict=True)},
+            params=self.params_text(),
+            meta=self._meta(st),
+        )
+
+    def _meta(self, st: KernelState) -> dict[str, Any]:
+        return {}
+
+
+def wind_at(wind: WindProvider, t: F64) -> F64:
+    """The provider's wind (len(t), 3) at the times t (s); a provider with a vectorised
+    ``at(t)`` (the oracle, the constant) is evaluated in one call."""
+    at = getattr(wind, "at", None)
+    if at is not None:
+        return np.asarray(at(t), dtype=np.float64).reshape(len(t), 3)
+    return np.array([wind(float(ti)) for ti in t], dtype=np.float64).reshape(len(t), 3)
+
+
+# --- parameter records: checks and TOML ---------------------------------------------------
+
+_P = TypeVar("_P")
+
+
+def bad_param(obj: object, name: str, expected: str) -> ValueError:
+    """ValueError naming the field of a parameter record, expected and found."""
+    found = getattr(obj, name)
+    return ValueError(f"{type(obj).__name__}.{name}: expected {expected}, found {found!r}")
+
+
+def check_number(obj: object, name: str, *, positive: bool) -> None:
+    """Raise unless the field is a finite number > 0 (positive) or >= 0."""
+    v = getattr(obj, name)
+    ok = isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
+    if not ok or (v <= 0 if positive else v < 0):
+        raise bad_param(obj, name, "a finite number " + ("> 0" if positive else ">= 0"))
+
+
+def check_choice(obj: object, name: str, choices: tuple[str, ...]) -> None:
+    """Raise unless the field is one of choices."""
+    if getattr(obj, name) not in choices:
+        raise bad_param(obj, name, "one of " + ", ".join(repr(c) for c in choices))
+
+
+def params_from_toml(params_type: type[_P], path: str | os.PathLike[str]) -> _P:
+    """Parameters from a TOML file holding one ``[windahrs]`` table of our field names
+    (the PX4 / ArduPilot tables of the error-state filters have no meaning here)."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{p}: no such parameter file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    other = sorted(set(data) - {"windahrs"})
+    if other:
+        raise ValueError(f"{p}: expected only a [windahrs] table, found [{other[0]}]")
+    table: dict[str, Any] = dict(data.get("windahrs", {}))
+    known = {f.name for f in dataclasses.fields(params_type)}  # type: ignore[arg-type]
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise ValueError(
+            f"{p}: [windahrs].{unknown[0]}: expected one of {', '.join(sorted(known))}, found an unknown key"
+        )
+    if isinstance(table.get("mean_wind_n"), list):
+        table["mean_wind_n"] = tuple(table["mean_wind_n"])
+    return params_type(**table)
