@@ -116,15 +116,32 @@ def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
 
 
 @njit(inline="always", **_JIT)
+def mag_reference(cfg, prm, x, flags, mx, my, mz):
+    """The nav-frame reference field (set from this sample on first use): (rx, ry, rz) T."""
+    if flags[S_MAGN] == 0:
+        _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
+    return x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
+
+
+@njit(inline="always", **_JIT)
+def measured_heading(roll, pitch, mx, my, mz, rx, ry):
+    """The heading (ZYX yaw, rad) that the field sample m (body) gives against the
+    reference's horizontal direction, tilt-compensated with the estimate's roll and pitch."""
+    ql = _quat_from_euler(roll, pitch, 0.0)
+    c = _dcm9(ql[0], ql[1], ql[2], ql[3])
+    m0 = c[0] * mx + c[1] * my + c[2] * mz
+    m1 = c[3] * mx + c[4] * my + c[5] * mz
+    return math.atan2(ry, rx) - math.atan2(m1, m0)
+
+
+@njit(inline="always", **_JIT)
 def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite) of an initialised filter: row[:3] tesla, body, at t s."""
     mx, my, mz = row[0], row[1], row[2]
     mode = cfg[C_MAG]
     if mode == MAG_OFF:
         return
-    if flags[S_MAGN] == 0:
-        _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
-    rx, ry, rz = x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
+    rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
     nu = work[W_NU]
     if prm[R_MAG_LP] > 0:  # fuse the low-passed field
         if flags[S_MBAR] == 0:
@@ -178,12 +195,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     # heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate
     roll, pitch, yaw = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    ql = _quat_from_euler(roll, pitch, 0.0)
-    c = _dcm9(ql[0], ql[1], ql[2], ql[3])
-    m0 = c[0] * mx + c[1] * my + c[2] * mz
-    m1 = c[3] * mx + c[4] * my + c[5] * mz
-    psi_m = math.atan2(ry, rx) - math.atan2(m1, m0)
-    nu[0] = _wrap_pi(psi_m - yaw)
+    nu[0] = _wrap_pi(measured_heading(roll, pitch, mx, my, mz, rx, ry) - yaw)
     cp = math.cos(pitch)
     work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, math.sin(roll) / cp, math.cos(roll) / cp
     sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2

@@ -284,18 +284,42 @@ def _rotate_into(c, x, i0):
 
 
 @njit(inline="always", **_JIT)
-def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
-    """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s
-    propagation, then the accelerometer's aid source."""
-    fx, fy, fz = row[3], row[4], row[5]
-    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = fx, fy, fz
+def imu_clock(cfg, prm, x, flags, P, work, t, row):
+    """Every filter's first step at an IMU sample row = [w_b, f_b] at t s: keep the specific
+    force, initialise when it can; returns the step dt s since the last IMU sample, or -1
+    while not initialised (nothing else to do)."""
+    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = row[3], row[4], row[5]
     flags[S_FLAST] = 1
     if flags[S_INIT] == 0:
         _try_init(cfg, prm, x, flags, P, work)
         x[X_TIMU] = t
-        return
+        return -1.0
     dt = t - x[X_TIMU]
     x[X_TIMU] = t
+    return dt
+
+
+@njit(inline="always", **_JIT)
+def mag_ready(cfg, prm, x, flags, P, work, row):
+    """Every filter's first step at a magnetometer sample row[:3] T: before initialisation
+    keep the first sample for the initial heading; returns whether initialised."""
+    if flags[S_INIT] == 0:
+        if flags[S_FMAG] == 0:
+            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
+            flags[S_FMAG] = 1
+        _try_init(cfg, prm, x, flags, P, work)
+        return False
+    return True
+
+
+@njit(inline="always", **_JIT)
+def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
+    """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
+    propagation, then the accelerometer's aid source."""
+    dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
+    if dt < 0:
+        return
+    fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
         if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
             _rotate_lowpass(x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
@@ -311,15 +335,9 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 
 @njit(inline="always", **_JIT)
 def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
-    """A magnetometer sample (finite): row[:3] tesla, body, at t s; before initialisation
-    the first sample is kept for the initial heading."""
-    if flags[S_INIT] == 0:
-        if flags[S_FMAG] == 0:
-            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
-            flags[S_FMAG] = 1
-        _try_init(cfg, prm, x, flags, P, work)
-        return
-    fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+    """A magnetometer sample (finite): row[:3] tesla, body, at t s."""
+    if mag_ready(cfg, prm, x, flags, P, work, row):
+        fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
 @njit(inline="always", **_JIT)

@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from windahrs.aid.mag import _set_mag_reference
+from windahrs.aid.mag import mag_reference, measured_heading
 from windahrs.core.kalman import _gate, _log
 from windahrs.core.kernel import (
     _STREAMS,
@@ -49,9 +49,10 @@ from windahrs.core.kernel import (
     Kind,
     _grow,
     _innovations,
-    _try_init,
     effective_mag_mode,
+    imu_clock,
     layout_for,
+    mag_ready,
     make_state,
     record,
     sample_ok,
@@ -76,27 +77,17 @@ from windahrs.core.layout import (
     R_NORM_GATE,
     R_SB2,
     R_SG2,
-    S_FLAST,
-    S_FMAG,
-    S_INIT,
-    S_MAGN,
     SENSOR_STREAMS,
     SENSORS,
     X_BG,
-    X_FLAST,
-    X_FMAG,
-    X_MAGN,
     X_Q,
-    X_TIMU,
     KernelState,
 )
 from windahrs.core.quat import (
-    _dcm9,
     _euler,
     _qexp,
     _qmul,
     _qnormalize,
-    _quat_from_euler,
     _wrap_pi,
 )
 from windahrs.estimate import Estimate
@@ -378,15 +369,10 @@ def _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, gate2, angle):
 def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
     """An IMU sample row = [w_b, f_b] (finite): initialise, or propagate and fuse the
     accelerometer as gravity (gated on ``| |f| - g |``)."""
-    fx, fy, fz = row[3], row[4], row[5]
-    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = fx, fy, fz
-    flags[S_FLAST] = 1
-    if flags[S_INIT] == 0:
-        _try_init(cfg, prm, x, flags, P, work)
-        x[X_TIMU] = t
+    dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
+    if dt < 0:
         return
-    dt = t - x[X_TIMU]
-    x[X_TIMU] = t
+    fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
         _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
     nu = work[U_NU]
@@ -407,18 +393,12 @@ def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
     """A magnetometer sample row[:3] (tesla, body; finite): initialise, or fuse it in 3-D or
     as heading."""
     mx, my, mz = row[0], row[1], row[2]
-    if flags[S_INIT] == 0:
-        if flags[S_FMAG] == 0:
-            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = mx, my, mz
-            flags[S_FMAG] = 1
-        _try_init(cfg, prm, x, flags, P, work)
+    if not mag_ready(cfg, prm, x, flags, P, work, row):
         return
     mode = cfg[C_MAG]
     if mode == MAG_OFF:
         return
-    if flags[S_MAGN] == 0:
-        _set_mag_reference(cfg, prm, x, flags, mx, my, mz)
-    rx, ry, rz = x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
+    rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
     nu = work[U_NU]
     sensor = np.int64(INN_MAG)
     if mode == MAG_3D:
@@ -429,11 +409,7 @@ def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
         return
     # heading only, tilt-compensated with the current roll/pitch estimate (as [mekf])
     roll, pitch, _ = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    ql = _quat_from_euler(roll, pitch, 0.0)
-    c = _dcm9(ql[0], ql[1], ql[2], ql[3])
-    m0 = c[0] * mx + c[1] * my + c[2] * mz
-    m1 = c[3] * mx + c[4] * my + c[5] * mz
-    nu[0] = math.atan2(ry, rx) - math.atan2(m1, m0)
+    nu[0] = measured_heading(roll, pitch, mx, my, mz, rx, ry)
     sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
     _sigma(x, P, work)
     _predict_heading(work)
