@@ -12,7 +12,6 @@ Nothing is allocated inside the loop.
 
 from __future__ import annotations
 
-import math
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -45,6 +44,7 @@ from windahrs.aid.sideslip import (
 from windahrs.aid.tas import (
     fuse_tas,
 )
+from windahrs.core.events import sample_ok
 from windahrs.core.layout import (
     _JIT,
     AIR_AIRSPEED,
@@ -181,9 +181,9 @@ from windahrs.filters.base import (
     EVENT_IMU,
     EVENT_MAG,
     Estimator,
+    EventStreamer,
     InitialState,
     StateView,
-    Streamer,
     merge_events,
 )
 from windahrs.filters.params import EskfParams
@@ -451,22 +451,6 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
             out_cov[k, i - 1, j - 1] = P[i, j]
 
 
-@njit(inline="always", **_JIT)
-def sample_ok(kind, row):
-    """Whether an event's sample can be used: an IMU sample with 6 finite values, a
-    magnetometer or GNSS sample with 3, an air sample with a finite airspeed (NaN vanes
-    mean no vanes). The event loops skip the others and count them per stream (K_SKIP +
-    kind: the EVENT_* codes are the skip counters' order)."""
-    if kind == EVENT_IMU:
-        for a in range(6):
-            if not math.isfinite(row[a]):
-                return False
-        return True
-    if kind == EVENT_AIR:
-        return math.isfinite(row[0])
-    return math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2])
-
-
 @njit(**_JIT)
 def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec):
     """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,), kinds (E,), vals (E, 6)),
@@ -711,7 +695,7 @@ def _grow(st: KernelState) -> KernelState:
     return st._replace(cfg=cfg, inn=inn, acc=acc)
 
 
-class CompiledStreamer(Streamer):
+class CompiledStreamer(EventStreamer):
     """A compiled filter fed sample by sample through the same step functions as the
     batch run (so a flight streamed equals its batch estimate)."""
 
@@ -732,9 +716,6 @@ class CompiledStreamer(Streamer):
         self._st = make_state(kind, additive, params, site, initial, has, np.full(N_SENSORS, 256, dtype=np.int64))
         self._mag_fusion = effective_mag_mode(params, site)
         # one event at a time through the batch loop, without recording
-        self._t = np.zeros(1)
-        self._kind = np.zeros(1, dtype=np.int64)
-        self._row = np.zeros((1, 6))
         self._none = (
             np.empty((0, 4)),
             np.empty((0, 3)),
@@ -746,26 +727,7 @@ class CompiledStreamer(Streamer):
     def _step(self, kind: int, t: float) -> None:
         if (self._st.flags[L_CNT : L_CNT + N_SENSORS] >= self._st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
             self._st = _grow(self._st)  # an event logs at most one row per sensor
-        self._t[0] = t
-        self._kind[0] = kind
         run_events(self._st, self._t, self._kind, self._row, *self._none, False)
-
-    def _imu(self, t: float, w_b: F64, f_b: F64) -> None:
-        self._row[0, :3] = w_b
-        self._row[0, 3:6] = f_b
-        self._step(EVENT_IMU, t)
-
-    def _mag(self, t: float, mag_b: F64) -> None:
-        self._row[0, :3] = mag_b
-        self._step(EVENT_MAG, t)
-
-    def _gnss(self, t: float, v_n: F64) -> None:
-        self._row[0, :3] = v_n
-        self._step(EVENT_GNSS, t)
-
-    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
-        self._row[0, :3] = (tas, aoa, sideslip)
-        self._step(EVENT_AIR, t)
 
     def innovations(self) -> dict[str, Innovations]:
         return _innovations(self._st, self._mag_fusion)

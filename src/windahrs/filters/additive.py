@@ -42,6 +42,7 @@ from windahrs.core.dense import (
     ut_update,
     ut_weights,
 )
+from windahrs.core.events import sample_ok
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     EVENT_AIR,
@@ -49,9 +50,9 @@ from windahrs.filters.base import (
     EVENT_IMU,
     EVENT_MAG,
     Estimator,
+    EventStreamer,
     InitialState,
     StateView,
-    Streamer,
     merge_events,
 )
 from windahrs.filters.base import triad as base_triad
@@ -493,29 +494,16 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
         row = vals[i]
         if kind == EVENT_IMU:
             k += 1
-            ok = True
-            for a in range(6):
-                if not math.isfinite(row[a]):
-                    ok = False
-            if ok:
-                step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy(), row[3:6].copy())
-            else:
-                flags[K_SKIP] += 1
+        if not sample_ok(kind, row):
+            flags[K_SKIP + kind] += 1
+        elif kind == EVENT_IMU:
+            step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy(), row[3:6].copy())
         elif kind == EVENT_MAG:
-            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
-                step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy())
-            else:
-                flags[K_SKIP + 1] += 1
+            step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy())
         elif kind == EVENT_GNSS:
-            if math.isfinite(row[0]) and math.isfinite(row[1]) and math.isfinite(row[2]):
-                step_gnss(s, flags, t, row[:3].copy())
-            else:
-                flags[K_SKIP + 2] += 1
+            step_gnss(s, flags, t, row[:3].copy())
         elif kind == EVENT_AIR:
-            if math.isfinite(row[0]):
-                step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[1], row[2], row[3:6].copy())
-            else:
-                flags[K_SKIP + 3] += 1
+            step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[1], row[2], row[3:6].copy())
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov)
 
@@ -645,7 +633,7 @@ def unfused_counts(st: KernelState) -> dict[str, int]:
 _STREAMS = ("imu", "mag", "gnss", "air")
 
 
-class AdditiveStreamer(Streamer):
+class AdditiveStreamer(EventStreamer):
     """An additive-quaternion filter fed sample by sample through the same compiled loop
     as the batch run (so a flight streamed equals its batch estimate)."""
 
@@ -663,9 +651,6 @@ class AdditiveStreamer(Streamer):
         self._labels = labels
         self._wind = wind
         self._st = make_state(config, site, has, 256)
-        self._t = np.zeros(1)
-        self._kind = np.zeros(1, dtype=np.int64)
-        self._row = np.full((1, 6), np.nan)
         d = len(labels)
         self._q, self._bg, self._cov = np.empty((1, 4)), np.empty((1, 3)), np.empty((1, d, d))
 
@@ -682,28 +667,13 @@ class AdditiveStreamer(Streamer):
             inn[: len(st.inn)] = st.inn
             ids[: len(st.inn_id)] = st.inn_id
             self._st = st = st._replace(inn=inn, inn_id=ids)
-        self._t[0] = t
-        self._kind[0] = kind
         run_events(st, self._t, self._kind, self._row, self._q, self._bg, self._cov, False)
 
-    def _imu(self, t: float, w_b: F64, f_b: F64) -> None:
-        self._row[0, :3] = w_b
-        self._row[0, 3:6] = f_b
-        self._step(EVENT_IMU, t)
-
-    def _mag(self, t: float, mag_b: F64) -> None:
-        self._row[0, :3] = mag_b
-        self._step(EVENT_MAG, t)
-
-    def _gnss(self, t: float, v_n: F64) -> None:
-        self._row[0, :3] = v_n
-        self._step(EVENT_GNSS, t)
-
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
-        self._row[0, :3] = (tas, aoa, sideslip)
+        # the air row also carries the wind the filter is given
         self._row[0, 3:6] = np.nan if self._wind is None else self._wind(t)
         skipped = int(self._st.flags[K_SKIP + 3])
-        self._step(EVENT_AIR, t)
+        super()._air(t, tas, aoa, sideslip)
         self.skipped["air"] += int(self._st.flags[K_SKIP + 3]) - skipped  # vanes NaN
 
     def innovations(self) -> dict[str, Innovations]:

@@ -34,6 +34,7 @@ __all__ = [
     "EVENT_IMU",
     "EVENT_MAG",
     "Estimator",
+    "EventStreamer",
     "InitialState",
     "MissingSensorError",
     "StateView",
@@ -254,6 +255,44 @@ class Streamer(ABC):
         clone = copy.deepcopy(snapshot)  # through the type's own __deepcopy__, when it has one
         self.__dict__.clear()
         self.__dict__.update(clone.__dict__)
+
+
+class EventStreamer(Streamer):
+    """A streamer over a compiled event loop: each sample becomes one event row (as
+    :func:`merge_events` lays them out) handed to :meth:`_step`, the batch run's own loop
+    called on a single event, so a flight streamed equals its batch run bit for bit."""
+
+    def __init__(self, filter_name: str) -> None:
+        super().__init__(filter_name)
+        self._t = np.zeros(1)
+        self._kind = np.zeros(1, dtype=np.int64)
+        self._row = np.full((1, 6), np.nan)
+
+    @abstractmethod
+    def _step(self, kind: int, t: float) -> None:
+        """Run the compiled loop on the event in ``_row`` of ``kind`` (EVENT_*) at t s."""
+
+    def _event(self, kind: int, t: float) -> None:
+        self._t[0] = t
+        self._kind[0] = kind
+        self._step(kind, t)
+
+    def _imu(self, t: float, w_b: F64, f_b: F64) -> None:
+        self._row[0, :3] = w_b
+        self._row[0, 3:6] = f_b
+        self._event(EVENT_IMU, t)
+
+    def _mag(self, t: float, mag_b: F64) -> None:
+        self._row[0, :3] = mag_b
+        self._event(EVENT_MAG, t)
+
+    def _gnss(self, t: float, v_n: F64) -> None:
+        self._row[0, :3] = v_n
+        self._event(EVENT_GNSS, t)
+
+    def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
+        self._row[0, :3] = (tas, aoa, sideslip)
+        self._event(EVENT_AIR, t)
 
 
 def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.int64], F64]:

@@ -42,6 +42,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.aid.mag import mag_reference, measured_heading
+from windahrs.core.events import sample_ok
 from windahrs.core.kalman import _gate, _log
 from windahrs.core.kernel import (
     _STREAMS,
@@ -55,7 +56,6 @@ from windahrs.core.kernel import (
     mag_ready,
     make_state,
     record,
-    sample_ok,
 )
 from windahrs.core.layout import (
     _JIT,
@@ -470,8 +470,6 @@ class UsqueStreamer(CompiledStreamer):
         st = self._st
         if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
             self._st = st = _grow(st)  # an event logs at most one row per sensor
-        self._t[0] = t
-        self._kind[0] = kind
         run_usque(st, self._t, self._kind, self._row, self._none[0], self._none[1], self._none[2], self._none[4], False)
 
     def _gnss(self, t: float, v_n: F64) -> None:
