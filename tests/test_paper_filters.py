@@ -304,6 +304,16 @@ def test_psd_root_of_a_singular_covariance() -> None:
     np.testing.assert_array_equal(psd_root(B), np.diag([1.0, 0.0, np.sqrt(2.0)]))
 
 
+def test_ukf_answers_are_continuous_in_the_last_bit_of_p0() -> None:
+    # With the eigen root a 1-ulp change of the initial bias variance moved the attitudes
+    # by ~1e-3 rad (another eigenvector basis at the repeated eigenvalue); now by rounding.
+    flight = simulate(PaperScenario(wind_speed=5.0, duration=5.0), np.random.default_rng(RNG_SEED + 14))
+    p = AdditiveUKFParams()
+    a = AdditiveUKF(p).run(flight).q_nb
+    b = AdditiveUKF(AdditiveUKFParams(sigma_bias0=p.sigma_bias0 * (1 + 4e-16))).run(flight).q_nb
+    assert quat_angle(a, b).max() < 1e-12
+
+
 def test_models_reject_wrong_shapes() -> None:
     with pytest.raises(ValueError, match="q: expected shape"):
         Xi(np.zeros(3))

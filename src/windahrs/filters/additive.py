@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, ClassVar, NamedTuple, TypeVar
 
 import numpy as np
-from numba import njit, objmode
+from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.core.dense import (
@@ -43,6 +43,7 @@ from windahrs.core.dense import (
     ut_update,
     ut_weights,
 )
+from windahrs.core.quat import _triad
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     EVENT_AIR,
@@ -55,7 +56,6 @@ from windahrs.filters.base import (
     Streamer,
     merge_events,
 )
-from windahrs.filters.base import triad as base_triad
 from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
     Xi,
@@ -186,25 +186,20 @@ def _qnormalize(q):
 
 @njit(**_JIT)
 def _norm3(v):
-    """|v| as numpy.linalg.norm computes it (the UKF is sensitive to its last bit)."""
+    """|v| as numpy.linalg.norm computes it (keeps the paper's and the EKF's last bits)."""
     c = np.ascontiguousarray(v)
     return math.sqrt(np.dot(c, c))
 
 
-def _triad_py(f_b: F64, mag_b: F64, use_mag: bool, mag_n: F64, use_ref: bool) -> F64:
-    q = base_triad(f_b, mag_b if use_mag else None, mag_n if use_ref else None)
-    return np.ascontiguousarray(q, dtype=np.float64)
-
-
 @njit(**_JIT)
 def triad(f_b, mag_b, use_mag, mag_n, use_ref):
-    """base.triad, called from compiled code (once per run, and for the states recorded
-    before initialisation): q_nb (4,) from f_b (3,) and, when use_mag, mag_b (3,) against
-    mag_n (3,)'s declination when use_ref. Its arcsin and arctan2 are numpy's, whose last
-    bits differ from the C library's (and the UKF's sigma points depend on them)."""
-    with objmode(q="float64[::1]"):
-        q = _triad_py(f_b, mag_b, use_mag, mag_n, use_ref)
-    return q
+    """base.triad, compiled (core.quat): q_nb (4,) from f_b (3,) and, when use_mag,
+    mag_b (3,) against mag_n (3,)'s declination when use_ref. Called once per run, and
+    for the states recorded before initialisation."""
+    q0, q1, q2, q3 = _triad(
+        f_b[0], f_b[1], f_b[2], use_mag, mag_b[0], mag_b[1], mag_b[2], use_ref, mag_n[0], mag_n[1], mag_n[2]
+    )
+    return np.array([q0, q1, q2, q3])
 
 
 @njit(**_JIT)
