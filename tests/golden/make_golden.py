@@ -45,7 +45,7 @@ FILTERS = (
 )
 #: Keys rewritten by ``--only`` since the stored commit: filter -> (commit, why).
 REGENERATED = {
-    "ukf": ("ukf-root", "sigma points from an LDL^T root instead of an eigen root (determinism, speed)"),
+    "ukf": ("cfeedb9", "sigma points from an LDL^T root instead of an eigen root (determinism, speed)"),
 }
 #: Physically tuned filters as the reproduction builds them (matched to the sensors).
 MATCHED = ("ekf7", "mekf", "usque", "ins-wind", "mekf-air")
