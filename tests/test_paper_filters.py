@@ -12,7 +12,15 @@ import pytest
 from scipy.linalg import expm
 
 from windahrs.conventions import DEG, UP_N
-from windahrs.core.dense import kalman_update, sigma_points, ut_mean_cov, ut_update, ut_weights
+from windahrs.core.dense import (
+    PIVOT_RTOL,
+    kalman_update,
+    psd_root,
+    sigma_points,
+    ut_mean_cov,
+    ut_update,
+    ut_weights,
+)
 from windahrs.estimate import Estimate
 from windahrs.filters.base import InitialState, MissingSensorError, merge_events
 from windahrs.filters.ekf import TraditionalEKF, TraditionalEKFParams
@@ -233,6 +241,77 @@ def test_unscented_update_equals_the_kalman_update_on_a_linear_model() -> None:
     np.testing.assert_allclose(x_u, x_k, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(P_u, P_k, rtol=1e-8, atol=1e-10)
     assert nis_u == pytest.approx(nis_k, rel=1e-9)
+
+
+def _ukf_like_covariance(q: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """A UKF start covariance: isotropic attitude (rank 3, singular along q) and an
+    isotropic bias with the eigenvectors V (3, 3) of the repeated bias eigenvalue."""
+    P = np.zeros((7, 7))
+    P[:4, :4] = quat_cov_from_att_cov(q, (2.0 * DEG) ** 2 * np.eye(3))
+    P[4:, 4:] = V @ ((0.5 * DEG) ** 2 * np.eye(3)) @ V.T
+    return P
+
+
+def test_sigma_points_are_a_function_of_the_covariance_alone() -> None:
+    # The start covariance has repeated eigenvalues: an eigen root depends on which basis
+    # of each eigenspace is picked, the LDL^T root must not.
+    rng = np.random.default_rng(RNG_SEED + 12)
+    q = _unit(rng, 4)
+    x = np.concatenate([q, rng.normal(scale=1e-3, size=3)])
+    wm, wc, spread = ut_weights(7, 1.0, 0.0, 1.0)
+    P = _ukf_like_covariance(q, np.eye(3))
+    w, V = np.linalg.eigh(P)
+    X = sigma_points(x, P, spread)
+    for _ in range(3):
+        # rotate the eigenvectors within each repeated eigenvalue (the 0 of q, the
+        # attitude triple, the bias triple): the same P up to rounding
+        W = V.copy()
+        for group in (np.flatnonzero(np.isclose(w, v, rtol=1e-9, atol=1e-30)) for v in np.unique(w.round(30))):
+            Qr, _ = np.linalg.qr(rng.normal(size=(len(group), len(group))))
+            W[:, group] = V[:, group] @ Qr
+        P_rot = W @ np.diag(w) @ W.T
+        assert not np.array_equal(P_rot, P)  # not bit-equal: last bits move
+        X_rot = sigma_points(x, P_rot, spread)
+        np.testing.assert_allclose(X_rot, X, rtol=0, atol=1e-12)
+        # (the eigen root it replaced moves by the size of the spread)
+        assert np.abs(W * np.sqrt(w.clip(0)) - V * np.sqrt(w.clip(0))).max() > 1e-3
+        # and with every bit equal, every bit of the points is equal
+        np.testing.assert_array_equal(sigma_points(x, P_rot.copy(), spread), X_rot)
+    # the points still carry the mean and the (singular) covariance
+    x_ut, P_ut = ut_mean_cov(X, wm, wc)
+    np.testing.assert_allclose(x_ut, x, atol=1e-15)
+    np.testing.assert_allclose(P_ut, P, rtol=0, atol=1e-16)
+
+
+def test_psd_root_of_a_singular_covariance() -> None:
+    rng = np.random.default_rng(RNG_SEED + 13)
+    q = _unit(rng, 4)
+    P = _ukf_like_covariance(q, np.linalg.qr(rng.normal(size=(3, 3)))[0])
+    # the normalisation projection: singular along q to within rounding, pivots of
+    # either sign at the 1e-20 level
+    P = project_normalization(P, q)
+    L = psd_root(P)
+    assert np.all(np.isfinite(L))
+    np.testing.assert_array_equal(L, np.tril(L))
+    np.testing.assert_allclose(L @ L.T, P, rtol=0, atol=1e-16)
+    assert np.count_nonzero(np.diag(L)) == 6  # one zero pivot: the direction q
+    # a positive definite A: the Cholesky factor
+    A = rng.normal(size=(7, 7))
+    A = A @ A.T + np.eye(7)
+    np.testing.assert_allclose(psd_root(A), np.linalg.cholesky(A), rtol=1e-12, atol=1e-14)
+    # a pivot below the tolerance is zero, with its column
+    B = np.diag([1.0, 0.5 * PIVOT_RTOL, 2.0])
+    np.testing.assert_array_equal(psd_root(B), np.diag([1.0, 0.0, np.sqrt(2.0)]))
+
+
+def test_ukf_answers_are_continuous_in_the_last_bit_of_p0() -> None:
+    # With the eigen root a 1-ulp change of the initial bias variance moved the attitudes
+    # by ~1e-3 rad (another eigenvector basis at the repeated eigenvalue); now by rounding.
+    flight = simulate(PaperScenario(wind_speed=5.0, duration=5.0), np.random.default_rng(RNG_SEED + 14))
+    p = AdditiveUKFParams()
+    a = AdditiveUKF(p).run(flight).q_nb
+    b = AdditiveUKF(AdditiveUKFParams(sigma_bias0=p.sigma_bias0 * (1 + 4e-16))).run(flight).q_nb
+    assert quat_angle(a, b).max() < 1e-12
 
 
 def test_models_reject_wrong_shapes() -> None:

@@ -6,10 +6,17 @@ gives that commit's answers. Rerun it only when a change of answers is intended,
 which and by how much in the commit message.
 
     python tests/golden/make_golden.py
+    python tests/golden/make_golden.py --only ukf   # rewrite only these filters' attitudes
+
+``--only`` rewrites the listed filters' keys of attitudes.npz and keeps every other key,
+the stored commit label and detail.npz; record each such regeneration in
+:data:`REGENERATED` (the file holds no per-key note: tests/test_golden.py reads every key
+but ``commit`` as a case).
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import subprocess
 from pathlib import Path
@@ -36,6 +43,10 @@ FILTERS = (
     "paper", "paper:wind=mean", "paper-nowind", "ekf", "ukf",
     "ekf7", "ekf10", "mekf", "mekf-air", "ins-wind", "usque",
 )
+#: Keys rewritten by ``--only`` since the stored commit: filter -> (commit, why).
+REGENERATED = {
+    "ukf": ("cfeedb9", "sigma points from an LDL^T root instead of an eigen root (determinism, speed)"),
+}
 #: Physically tuned filters as the reproduction builds them (matched to the sensors).
 MATCHED = ("ekf7", "mekf", "usque", "ins-wind", "mekf-air")
 EVERY = 5  # keep every 5th IMU sample
@@ -180,10 +191,16 @@ def summary(e: Estimate) -> dict[str, Any]:
     return out
 
 
-def main() -> None:
+def _rev() -> str:
+    git = ["git", "rev-parse", "--short", "HEAD"]
+    return subprocess.run(git, capture_output=True, text=True, cwd=HERE).stdout.strip()
+
+
+def attitudes(only: tuple[str, ...] = FILTERS) -> dict[str, np.ndarray]:
+    """The golden attitudes of the filters ``only`` on every flight, by key."""
     out: dict[str, np.ndarray] = {}
     for fname, w, fl in flights():
-        for spec in FILTERS:
+        for spec in only:
             est = make_estimator(spec)
             try:
                 est.check(fl)
@@ -193,8 +210,35 @@ def main() -> None:
             if w is not None and spec in MATCHED:
                 out[f"{fname}|{spec}|matched"] = _estimator(Case(w, spec, "none")).run(fl).q_nb[::EVERY]
             print(fname, spec, flush=True)
-    git = ["git", "rev-parse", "--short", "HEAD"]
-    rev = subprocess.run(git, capture_output=True, text=True, cwd=HERE).stdout.strip()
+    return out
+
+
+def rewrite_only(only: tuple[str, ...]) -> None:
+    """Rewrite the keys of the filters ``only`` in attitudes.npz; every other key and the
+    commit label stay as stored."""
+    unknown = sorted(set(only) - set(FILTERS))
+    if unknown:
+        raise SystemExit(f"--only: expected filters among {', '.join(FILTERS)}, found {unknown[0]!r}")
+    with np.load(HERE / "attitudes.npz") as z:
+        stored = {k: z[k] for k in z.files}
+    stale = [k for k in stored if k != "commit" and k.split("|")[1] in only]
+    new = attitudes(only)
+    if set(new) != set(stale):
+        raise SystemExit(f"--only: the new keys {sorted(new)} differ from the stored {sorted(stale)}")
+    stored.update(new)
+    np.savez_compressed(HERE / "attitudes.npz", **stored)
+    print(f"rewrote {len(new)} keys of {', '.join(only)} at {_rev()}; record it in REGENERATED")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    ap.add_argument("--only", help="comma-separated filters whose attitudes alone are rewritten")
+    args = ap.parse_args()
+    if args.only:
+        rewrite_only(tuple(s for s in args.only.split(",") if s))
+        return
+    out = attitudes()
+    rev = _rev()
     np.savez_compressed(HERE / "attitudes.npz", commit=np.array(rev), **out)
     detail: dict[str, Any] = {"commit": np.array(rev)}
     for key, kind, fname, params, truth in detail_cases():

@@ -5,10 +5,10 @@ paper-nowind, ekf, ukf).
 States are (n,) float64 arrays, covariances (n, n), measurements (m,) with noise R (m, m);
 every function returns new arrays and leaves its arguments alone. The EKF update is
 written in plain loops (n <= 7, m = 3: no BLAS call per sample), inverting the innovation
-covariance by Cholesky (it is symmetric positive definite). The unscented functions keep
-the array expressions of the reference they replace: with a covariance whose eigenvalues
-coincide (the UKF's isotropic P0) the symmetric-eigen sigma points depend on the last bit
-of P, so their arithmetic is kept operation for operation.
+covariance by Cholesky (it is symmetric positive definite). The unscented functions are
+plain loops too; their sigma points come from an LDL^T root (:func:`psd_root`), a function
+of the covariance alone: the symmetric-eigen root it replaced depended, for the UKF's
+isotropic P0, on which eigenvectors LAPACK picked within a repeated eigenvalue.
 With ``NUMBA_DISABLE_JIT=1`` the same source runs as plain Python.
 """
 
@@ -21,8 +21,11 @@ import numpy as np
 from numba import njit
 
 __all__ = [
+    "PIVOT_RTOL",
     "kalman_update",
+    "project_leading",
     "propagate_cov",
+    "psd_root",
     "sigma_points",
     "spd_inverse",
     "ut_mean_cov",
@@ -141,30 +144,114 @@ def ut_weights(n, alpha, beta, kappa):
     return wm, wc, n + lam
 
 
+#: Relative threshold of a zero pivot in :func:`psd_root`, in units of the largest
+#: diagonal entry of A (see there).
+PIVOT_RTOL = 64.0 * np.finfo(np.float64).eps
+
+
+@njit(**_JIT)
+def psd_root(A):
+    """Lower-triangular L (n, n) with ``L L^T = A`` for a symmetric positive
+    semi-definite A (n, n) (only its lower triangle is read).
+
+    Computed as ``A = M D M^T`` (LDL^T, unit lower-triangular M, no pivoting, plain loops)
+    and returned as ``L = M sqrt(D)``: a function of A alone, unlike the eigenvectors of a
+    repeated eigenvalue, and cheap.
+
+    A singular A (the UKF's quaternion block after ``q <- q/|q|``, singular along q, SPEC
+    2.3 and 4.2) has zero pivots that rounding turns into tiny numbers of either sign. A
+    perturbation of A of size ``delta`` moves pivot j by up to ``delta (1 + |m_j|^2)``,
+    ``m_j = M[j, :j]`` its multipliers (Higham, "Accuracy and Stability of Numerical
+    Algorithms", 2nd ed., section 10.3, the ``||W||`` of Thm 10.14), and the projection
+    leaves ``delta`` of a few eps times the largest entry. So pivot j is taken as zero,
+    with its column, when ``d_j <= PIVOT_RTOL max_k A[k, k] (1 + |m_j|^2)``: 64 eps
+    (1.4e-14) leaves a margin of ~10 over that rounding, and is far below any real
+    variance ratio of the UKF (on the paper's and a fixed-wing flight its smallest variance
+    stays above 1e-4 of its largest).
+    A clearly negative pivot (A not a covariance) is dropped likewise, as the eigen root's
+    ``max(w, 0)`` did."""
+    n = A.shape[0]
+    big = 0.0
+    for k in range(n):
+        big = max(big, A[k, k])
+    tol = PIVOT_RTOL * big
+    M = np.zeros((n, n))
+    d = np.zeros(n)
+    for j in range(n):
+        dj = A[j, j]
+        grow = 1.0
+        for k in range(j):
+            dj -= M[j, k] * M[j, k] * d[k]
+            grow += M[j, k] * M[j, k]
+        if dj <= tol * grow:
+            continue  # zero pivot: column j of M stays 0
+        d[j] = dj
+        M[j, j] = 1.0
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= M[i, k] * M[j, k] * d[k]
+            M[i, j] = s / dj
+    L = np.zeros((n, n))
+    for j in range(n):
+        r = math.sqrt(d[j])
+        for i in range(j, n):
+            L[i, j] = M[i, j] * r
+    return L
+
+
 @njit(**_JIT)
 def sigma_points(x, P, spread):
     """(2n+1, n) points ``x, x + columns of S, x - columns of S``, ``S S^T = spread P``.
 
-    S is the symmetric-eigen square root ``V sqrt(max(w, 0))`` of the symmetrised P: a
-    covariance projected by a normalisation is singular, where Cholesky fails."""
+    S is :func:`psd_root` of ``spread`` times the symmetrised P: deterministic (a function
+    of P alone) and defined for the singular P a normalisation leaves, where plain
+    Cholesky fails."""
     n = x.shape[0]
-    w, V = np.linalg.eigh(spread * (0.5 * (P + P.T)))
+    A = np.empty((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            A[i, j] = spread * (0.5 * (P[i, j] + P[j, i]))
+    L = psd_root(A)
     X = np.empty((2 * n + 1, n))
-    X[0] = x
+    for i in range(n):
+        X[0, i] = x[i]
     for j in range(n):
-        r = math.sqrt(max(w[j], 0.0))
         for i in range(n):
-            X[1 + j, i] = x[i] + V[i, j] * r
-            X[1 + n + j, i] = x[i] - V[i, j] * r
+            X[1 + j, i] = x[i] + L[i, j]
+            X[1 + n + j, i] = x[i] - L[i, j]
     return X
+
+
+@njit(**_JIT)
+def _weighted_mean(X, wm):
+    npts, n = X.shape
+    x = np.zeros(n)
+    for p in range(npts):
+        for i in range(n):
+            x[i] += wm[p] * X[p, i]
+    return x
+
+
+@njit(**_JIT)
+def _weighted_cross(wc, X, x, Y, y):
+    """``sum_p wc[p] (X[p] - x) (Y[p] - y)^T`` (n, m)."""
+    npts, n = X.shape
+    m = Y.shape[1]
+    C = np.zeros((n, m))
+    for p in range(npts):
+        for i in range(n):
+            a = wc[p] * (X[p, i] - x[i])
+            for j in range(m):
+                C[i, j] += a * (Y[p, j] - y[j])
+    return C
 
 
 @njit(**_JIT)
 def ut_mean_cov(X, wm, wc):
     """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n)."""
-    x = wm @ X
-    D = X - x
-    return x, (D.T * wc) @ D
+    x = _weighted_mean(X, wm)
+    return x, _weighted_cross(wc, X, x, X, x)
 
 
 @njit(**_JIT)
@@ -173,18 +260,56 @@ def ut_update(x, P, X, Y, z, R, wm, wc):
     predicted measurements Y (2n+1, m), the measurement z (m,) and its noise R (m, m).
 
     ``Pyy = sum wc dY dY^T + R``, ``Pxy = sum wc dX dY^T``, ``K = Pxy Pyy^-1``,
-    ``x+ = x + K (z - y)``, ``P+ = P - K Pyy K^T``. Returns (x+, P+, nu = z - y, NIS)."""
-    y = wm @ Y
-    dY = Y - y
-    dX = X - x
-    Pyy = (dY.T * wc) @ dY + R
-    Pxy = (dX.T * wc) @ dY
-    K = np.linalg.solve(Pyy, np.ascontiguousarray(Pxy.T)).T.copy()
+    ``x+ = x + K (z - y)``, ``P+ = P - K Pyy K^T = P - K Pxy^T``. Returns (x+, P+,
+    nu = z - y, NIS). Plain loops, Pyy inverted by Cholesky: no BLAS or LAPACK call."""
+    n, m = x.shape[0], z.shape[0]
+    y = _weighted_mean(Y, wm)
+    Pyy = _weighted_cross(wc, Y, y, Y, y) + R
+    Pxy = _weighted_cross(wc, X, x, Y, y)
+    Si = spd_inverse(Pyy)
     nu = z - y
-    x2 = x + K @ nu
-    P2 = P - K @ Pyy @ K.T
-    # the NIS is only logged: no second LAPACK solve
-    return x2, P2, nu, _quad(nu, spd_inverse(Pyy))
+    K = np.zeros((n, m))
+    x2 = x.copy()
+    for i in range(n):
+        for a in range(m):
+            s = 0.0
+            for b in range(m):
+                s += Pxy[i, b] * Si[b, a]
+            K[i, a] = s
+            x2[i] += s * nu[a]
+    P2 = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            # K Pyy K^T = K Pxy^T (exactly, as K Pyy = Pxy); symmetric by construction
+            s = 0.0
+            for a in range(m):
+                s += 0.5 * (K[i, a] * Pxy[j, a] + Pxy[i, a] * K[j, a])
+            P2[i, j] = P[i, j] - s
+            P2[j, i] = P[j, i] - s
+    return x2, P2, nu, _quad(nu, Si)
+
+
+@njit(**_JIT)
+def project_leading(P, J):
+    """``T P T^T`` (n, n) for ``T = blkdiag(J, I)``, J (k, k) acting on the first k of
+    the n states (the normalisation Jacobian of a leading quaternion): only the first k
+    rows and columns change. Plain loops; returns a new array."""
+    n, k = P.shape[0], J.shape[0]
+    A = P.copy()  # T P: the first k rows
+    for i in range(k):
+        for j in range(n):
+            s = 0.0
+            for a in range(k):
+                s += J[i, a] * P[a, j]
+            A[i, j] = s
+    out = A.copy()  # (T P) T^T: the first k columns
+    for i in range(n):
+        for j in range(k):
+            s = 0.0
+            for a in range(k):
+                s += A[i, a] * J[j, a]
+            out[i, j] = s
+    return out
 
 
 @njit(**_JIT)

@@ -60,7 +60,9 @@ class AdditiveUKFParams(TraditionalEKFParams):
 class AdditiveUKF(AdditiveEstimator):
     """The additive-quaternion UKF the paper compares with (ref. [7], SPEC 4.2).
 
-    State ``[q; b_g]`` (7); sigma points on the 7-vector (scaled unscented transform),
+    State ``[q; b_g]`` (7); sigma points on the 7-vector (scaled unscented transform,
+    from the LDL^T root :func:`~windahrs.core.dense.psd_root` of ``(n + lambda) P``:
+    determined by P alone, and defined where the normalisation leaves P singular along q),
     each propagated quaternion normalised and flipped to the centre point's hemisphere,
     weighted mean renormalised (covariance projected as in the EKF); process noise of
     SPEC 2.3; accelerometer and magnetometer as normalised vectors as in
