@@ -197,7 +197,11 @@ def test_normalize_state_projects_the_covariance(n: int) -> None:
     x2, P2 = normalize_state(x, P)
     np.testing.assert_allclose(x2[:4], -x[:4] / np.linalg.norm(x[:4]), rtol=1e-15)
     np.testing.assert_array_equal(x2[4:], x[4:])
-    np.testing.assert_allclose(P2, J @ P @ J.T, rtol=1e-12, atol=1e-15)
+    # x2 = T x with T = blkdiag(-J, I) to first order (the flip to w >= 0 negates q): the
+    # quaternion block is J P J^T, its covariance with the bias changes sign.
+    T = J.copy()
+    T[:4, :4] *= -1.0
+    np.testing.assert_allclose(P2, T @ P @ T.T, rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(P2, P2.T)
     np.testing.assert_allclose(P2[:4, :4] @ x2[:4], 0.0, atol=1e-12)  # nothing along q
     np.testing.assert_array_equal(x, x_in)  # arguments untouched: new arrays returned

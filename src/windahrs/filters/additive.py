@@ -305,24 +305,10 @@ def _observe_point(S, p, v, Y):
 
 @njit(**_JIT)
 def _normalize(x, P):
-    """normalize_state in place. With the UKF's bias (n = 7) its equations are applied
-    here with the projection in loops (core.dense.project_leading; the model's 7x7 is a
-    BLAS product, a third of the UKF's time per sample)."""
-    if x.shape[0] == 4:
-        x2, P2 = normalize_state(x, P)
-        x[:] = x2
-        P[:, :] = P2
-        return
-    q = x[:4].copy()
-    P2 = project_leading(P, normalization_jacobian(q))
-    # w >= 0; the flip leaves P as normalize_state leaves it
-    c = math.copysign(1.0, q[0]) / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    for i in range(4):
-        x[i] = q[i] * c
-    m = P.shape[0]
-    for i in range(m):
-        for j in range(m):
-            P[i, j] = 0.5 * (P2[i, j] + P2[j, i])
+    """:func:`~windahrs.models.additive.normalize_state` in place."""
+    x2, P2 = normalize_state(x, P)
+    x[:] = x2
+    P[:, :] = P2
 
 
 @njit(**_JIT)

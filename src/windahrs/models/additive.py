@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from windahrs.core.dense import project_leading
+
 __all__ = [
     "Omega",
     "Xi",
@@ -177,7 +179,10 @@ def ekf7_process_noise(q, sigma_g, sigma_b, dt):
     """
     X = Xi(q)
     Q = np.zeros((7, 7))
-    Q[:4, :4] = (sigma_g**2 * dt / 4.0 + sigma_b**2 * dt**3 / 12.0) * (X @ X.T)
+    c = sigma_g**2 * dt / 4.0 + sigma_b**2 * dt**3 / 12.0
+    for i in range(4):  # c X X^T, in loops (a BLAS call per step was a third of the UKF's time)
+        for j in range(4):
+            Q[i, j] = c * (X[i, 0] * X[j, 0] + X[i, 1] * X[j, 1] + X[i, 2] * X[j, 2])
     Q[:4, 4:] = -(sigma_b**2) * dt**2 / 4.0 * X
     Q[4:, :4] = Q[:4, 4:].T
     for i in range(4, 7):
@@ -279,18 +284,15 @@ def _project(P, J4):
             for j in range(4):
                 out[i, j] = A[i, 0] * J4[j, 0] + A[i, 1] * J4[j, 1] + A[i, 2] * J4[j, 2] + A[i, 3] * J4[j, 3]
         return out
-    J = np.eye(n)
-    J[:4, :4] = J4
-    return J @ np.ascontiguousarray(P) @ J.T
+    return project_leading(P, J4)
 
 
 @njit(**_JIT)
 def project_normalization(P, q):
     """``J P J^T`` (n, n) with ``J = blkdiag(normalization_jacobian(q), I)``: the
     covariance P (n, n) of a state starting with the quaternion q (4,), carried through
-    ``q -> q/|q|``. Returns a new array. (The products are BLAS calls: the UKF's sigma
-    points depend on their last bits, see core.dense; the 4x4 of the other filters is
-    unrolled.)"""
+    ``q -> q/|q|``. Returns a new array (the 4x4 unrolled, larger ones by
+    :func:`windahrs.core.dense.project_leading`)."""
     return _project(P, normalization_jacobian(q))
 
 
@@ -300,12 +302,18 @@ def normalize_state(x, P):
     (n,) starting with the quaternion and its covariance P (n, n). Returns new (x, P)."""
     n = _norm_q(x[:4])
     P2 = _project(P, _jacobian_of_norm(x, n))  # (n == 4: unrolled)
-    # The sign flip to w >= 0 leaves P unchanged (it is J -> -J on both sides).
     x2 = x.copy()
     c = math.copysign(1.0, x[0]) / n
     for i in range(4):
         x2[i] = x[i] * c
     m = P2.shape[0]
+    # The sign flip to w >= 0 is J -> -J on the quaternion: its own block is unchanged,
+    # its covariance with the rest (the UKF's bias) changes sign.
+    if c < 0.0:
+        for i in range(4):
+            for j in range(4, m):
+                P2[i, j] = -P2[i, j]
+                P2[j, i] = -P2[j, i]
     out = np.empty((m, m))
     for i in range(m):
         for j in range(m):
