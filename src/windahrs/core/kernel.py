@@ -453,9 +453,9 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
 
 @njit(**_JIT)
 def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec):
-    """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,), kinds (E,), vals (E, 6)),
-    skip and count NaN samples, and (rec) record for IMU sample k the state after every
-    event with t <= t_imu[k] (before the next IMU sample).
+    """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,),
+    kinds (E,), vals (E, 6)), skip and count NaN samples, and (rec) record for IMU sample k
+    the state after every event with t <= t_imu[k] (before the next IMU sample).
 
     The streamer calls it with one event at a time and rec=False: the per-kind step
     functions are inlined into this one compiled function, which batch and stream share
@@ -485,7 +485,6 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec)
 
 
 # --- Python side: encoding, estimators, streamer -------------------------------------------
-
 
 
 _KINDS = {"mekf": KIND_MEKF, "mekf-air": KIND_MEKF_AIR, "ins-wind": KIND_INS}

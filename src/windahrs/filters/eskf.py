@@ -34,10 +34,10 @@ from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.filters.params import EskfParams
 
-#: The air-data aid sources and the GNSS velocity as the input of [mekf-air]'s air data.
-_AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS)
-
 __all__ = ["MEKF_FIELD", "InsDrag", "InsWind", "Mekf", "MekfAir"]
+
+#: The parameters of the air-data aid sources (the vector, airspeed, synthetic sideslip).
+_AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS)
 
 
 #: [mekf]'s defaults for a 9-D AHRS in the field (handheld, robots, vehicles; BROAD-type
