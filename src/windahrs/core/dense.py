@@ -255,6 +255,31 @@ def ut_mean_cov(X, wm, wc):
 
 
 @njit(**_JIT)
+def unscented_gain(P, Pxy, Si, nu, K, dx, n, m):
+    """The unscented update's gain step, in place and without allocation, shared by [ukf]
+    and [usque]: ``K = Pxy Pyy^-1`` (K (n, m), Si = Pyy^-1 (m, m)), ``dx = K nu`` (n,)
+    and ``P <- P - K Pyy K^T = P - (K Pxy^T + Pxy K^T) / 2`` (exactly, as K Pyy = Pxy;
+    symmetric by construction). The first n rows and columns of the arrays are used."""
+    for i in range(n):
+        v = 0.0
+        for a in range(m):
+            s = 0.0
+            for b in range(m):
+                s += Pxy[i, b] * Si[b, a]
+            K[i, a] = s
+            v += s * nu[a]
+        dx[i] = v
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for a in range(m):
+                s += 0.5 * (K[i, a] * Pxy[j, a] + Pxy[i, a] * K[j, a])
+            P[i, j] = P[i, j] - s
+            if j != i:
+                P[j, i] = P[j, i] - s
+
+
+@njit(**_JIT)
 def ut_update(x, P, X, Y, z, R, wm, wc):
     """Unscented update of (x (n,), P (n, n)) from the sigma points X (2n+1, n), their
     predicted measurements Y (2n+1, m), the measurement z (m,) and its noise R (m, m).
@@ -268,25 +293,10 @@ def ut_update(x, P, X, Y, z, R, wm, wc):
     Pxy = _weighted_cross(wc, X, x, Y, y)
     Si = spd_inverse(Pyy)
     nu = z - y
-    K = np.zeros((n, m))
-    x2 = x.copy()
-    for i in range(n):
-        for a in range(m):
-            s = 0.0
-            for b in range(m):
-                s += Pxy[i, b] * Si[b, a]
-            K[i, a] = s
-            x2[i] += s * nu[a]
-    P2 = np.empty((n, n))
-    for i in range(n):
-        for j in range(i, n):
-            # K Pyy K^T = K Pxy^T (exactly, as K Pyy = Pxy); symmetric by construction
-            s = 0.0
-            for a in range(m):
-                s += 0.5 * (K[i, a] * Pxy[j, a] + Pxy[i, a] * K[j, a])
-            P2[i, j] = P[i, j] - s
-            P2[j, i] = P[j, i] - s
-    return x2, P2, nu, _quad(nu, Si)
+    K, dx = np.zeros((n, m)), np.zeros(n)
+    P2 = P.copy()
+    unscented_gain(P2, Pxy, Si, nu, K, dx, n, m)
+    return x + dx, P2, nu, _quad(nu, Si)
 
 
 @njit(**_JIT)

@@ -42,6 +42,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.aid.mag import mag_reference, measured_heading
+from windahrs.core.dense import unscented_gain
 from windahrs.core.events import sample_ok
 from windahrs.core.kalman import _gate, _log
 from windahrs.core.kernel import (
@@ -330,30 +331,7 @@ def _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, gate2, angle):
             Pxy[r, k] = s
     if not _gate(cfg, flags, inn, acc, nu, Pyy, Si, sensor, t, m, gate2):
         return False
-    # K = Pxy Pyy^-1, dx = K nu, P -= K Pyy K^T (then symmetrised)
-    for r in range(_N):
-        s = 0.0
-        for k in range(m):
-            v = 0.0
-            for l in range(m):
-                v += Si[k, l] * Pxy[r, l]
-            K[r, k] = v
-            s += v * nu[k]
-        dx[r] = s
-    for r in range(_N):
-        for c in range(_N):
-            s = 0.0
-            for k in range(m):
-                kp = 0.0
-                for l in range(m):
-                    kp += K[r, l] * Pyy[l, k]
-                s += kp * K[c, k]
-            P[r, c] -= s
-    for r in range(_N):
-        for c in range(r + 1, _N):
-            v = 0.5 * (P[r, c] + P[c, r])
-            P[r, c] = v
-            P[c, r] = v
+    unscented_gain(P, Pxy, Si, nu, K, dx, np.int64(_N), m)  # K, dx = K nu, P -= K Pyy K^T
     d = _dq_from_grp(dx[0], dx[1], dx[2])
     q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], d[0], d[1], d[2], d[3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
