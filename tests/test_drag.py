@@ -83,6 +83,8 @@ def test_a_field_the_estimator_does_not_use_is_refused() -> None:
         make_estimator("mekf:drag_mcoef=0.3")
     with pytest.raises(ValueError, match="filter 'ekf7' does not use parameter 'gyro_scale_noise'"):
         make_estimator("ekf7:gyro_scale_noise=1e-3")
+    with pytest.raises(ValueError, match="filter 'usque' does not use parameter 'init_mag_bias'"):
+        make_estimator("usque:init_mag_bias=1e-6")  # it carries no hard-iron states
     with pytest.raises(ValueError, match="has no parameter 'no_such_field'"):
         make_estimator("ins-drag:no_such_field=1")
 

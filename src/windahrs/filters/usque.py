@@ -42,6 +42,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.aid.mag import mag_reference, measured_heading
+from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
 from windahrs.core.events import sample_ok
 from windahrs.core.kalman import _gate, _log
@@ -457,19 +458,39 @@ class UsqueStreamer(CompiledStreamer):
         """[usque] fuses no air data."""
 
 
+#: The fields of EskfParams that [usque] uses: its process model's, the accelerometer as
+#: gravity (no compensation, no low-pass) and the magnetometer (the yaw heading model; no
+#: low-pass, no disturbance checks, no hard-iron states).
+PARAMS = (
+    *process.ATTITUDE_PARAMS,
+    "accel_sigma",
+    "accel_norm_gate",
+    "gate_accel",
+    "mag_mode",
+    "mag_sigma",
+    "mag_3d_needs_site",
+    "gate_mag",
+)
+
+
 class Usque(Estimator):
     """[usque] unscented quaternion estimator: attitude and gyro bias; accelerometer
     (gravity, gated) and magnetometer, with the models, noise and gates of [mekf].
 
-    params: :class:`EskfParams` (the fields of [mekf]; accel_compensation must be "none":
-    this filter fuses no GNSS or air data to compensate with; init_mag_bias is ignored: no
-    magnetometer-bias states).
+    params: :class:`EskfParams`, of which it uses :data:`PARAMS` (a spec or a parameter
+    file that sets another field is refused; accel_compensation must stay "none": this
+    filter fuses no GNSS or air data to compensate with).
     """
 
     name: ClassVar[str] = "usque"
     requires: ClassVar[frozenset[str]] = frozenset({"imu"})
     uses: ClassVar[frozenset[str]] = frozenset({"imu", "mag"})
     default_params: ClassVar[EskfParams] = EskfParams()
+
+    @classmethod
+    def param_names(cls) -> frozenset[str]:
+        """The fields of :class:`EskfParams` [usque] uses (the others cannot be set on it)."""
+        return frozenset(PARAMS)
 
     def __init__(self, params: EskfParams | None = None) -> None:
         p = params if params is not None else self.default_params
