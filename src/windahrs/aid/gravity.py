@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from windahrs.core.kalman import (
+    _bias_rows,
     _fuse,
     _log,
     _lowpass_gain,
@@ -39,7 +40,6 @@ from windahrs.core.layout import (
     S_AGNSS,
     S_FBAR,
     S_VAIR,
-    W_H,
     W_NU,
     X_AGNSS,
     X_BA,
@@ -103,11 +103,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     iba = cfg[C_IBA]
     if iba >= 0:  # (no accelerometer fusion in the INS; kept for the general model)
         h0, h1, h2 = h0 + x[X_BA], h1 + x[X_BA + 1], h2 + x[X_BA + 2]
-        for k in range(3):
-            for a in range(3):
-                work[W_H + k, iba + a] = 1.0 if k == a else 0.0
-            sup[0, 3 + k] = iba + k
-        nsup = 6
+        nsup = _bias_rows(work, sup[0], iba, nsup)
     nu[0], nu[1], nu[2] = fx - h0, fy - h1, fz - h2
     sensor, m, ns = np.int64(INN_ACCEL), np.int64(3), np.int64(nsup)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_ACC])

@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from windahrs.core.kalman import (
+    _bias_rows,
     _fuse,
     _log,
     _lowpass_gain,
@@ -170,11 +171,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         ibm = cfg[C_IBM]
         if ibm >= 0:  # + bm, H_bm = I
             h0, h1, h2 = y0 + x[X_BM], y1 + x[X_BM + 1], y2 + x[X_BM + 2]
-            for k in range(3):
-                for a in range(3):
-                    work[W_H + k, ibm + a] = 1.0 if k == a else 0.0
-                sup[0, 3 + k] = ibm + k
-            nsup = 6
+            nsup = _bias_rows(work, sup[0], ibm, nsup)
         nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
         sensor, m, ns = np.int64(INN_MAG), np.int64(3), np.int64(nsup)
         _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])

@@ -13,7 +13,6 @@ import dataclasses
 import importlib
 import math
 import os
-import tomllib
 from abc import abstractmethod
 from pathlib import Path
 from types import ModuleType
@@ -33,6 +32,7 @@ from windahrs.filters.base import (
     replay,
     triad,
 )
+from windahrs.filters.params import read_param_file
 from windahrs.flight import Flight, Site
 from windahrs.rotation import quat_from_euler, quat_identity
 
@@ -294,12 +294,7 @@ class LibraryEstimator(Estimator):
         """Parameters from a TOML file: a ``[windahrs]`` table of the parameter record's
         field names (e.g. ``gain_marg = 0.1``); anything else is refused (ValueError)."""
         p = Path(path)
-        try:
-            data = tomllib.loads(p.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"{p}: no such parameter file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{p}: not valid TOML ({exc})") from None
+        data = read_param_file(p)
         record = cls.params_type.__name__
         fields = {f.name for f in dataclasses.fields(cls.params_type)}
         changes: dict[str, Any] = {}

@@ -285,4 +285,16 @@ def _vector_rows(work, sup, y0, y1, y2, var):
             R[k, l] = var if k == l else 0.0
 
 
+@njit(inline="always", **_JIT)
+def _bias_rows(work, sup, ib, nsup):
+    """A 3-row measurement plus a sensor bias state (h += b, H_b = I): the identity on the
+    bias columns ib..ib+2 of every row, appended to the support sup (row) after nsup
+    columns. Returns the new support size."""
+    for k in range(3):
+        for a in range(3):
+            work[W_H + k, ib + a] = 1.0 if k == a else 0.0
+        sup[nsup + k] = ib + k
+    return nsup + 3
+
+
 # --- event steps --------------------------------------------------------------------------

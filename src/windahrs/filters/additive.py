@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +56,7 @@ from windahrs.filters.base import (
     StateView,
     merge_events,
 )
+from windahrs.filters.params import read_param_file
 from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
     Xi,
@@ -786,12 +786,7 @@ def params_from_toml(params_type: type[_P], path: str | os.PathLike[str]) -> _P:
     """Parameters from a TOML file holding one ``[windahrs]`` table of our field names
     (the PX4 / ArduPilot tables of the error-state filters have no meaning here)."""
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{p}: no such parameter file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    data = read_param_file(p)
     other = sorted(set(data) - {"windahrs"})
     if other:
         raise ValueError(f"{p}: expected only a [windahrs] table, found [{other[0]}]")

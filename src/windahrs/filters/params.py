@@ -29,7 +29,10 @@ from typing import Any, Literal
 
 from windahrs.conventions import DEG, G0
 
-__all__ = ["ARDUPILOT_MAP", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "imu_rate_warning", "load_params", "matched_to"]
+__all__ = [
+    "ARDUPILOT_MAP", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "imu_rate_warning", "load_params", "matched_to",
+    "read_param_file",
+]
 
 #: PX4 and ArduPilot filters use per-step noise at their prediction period; densities
 #: are that times sqrt(period). PX4 EKF2 predicts every 10 ms (EKF2_PREDICT_US default).
@@ -277,13 +280,20 @@ def load_params(
     """Read parameters from a TOML file (layout in the module docstring); ``allowed`` and
     ``filter_name`` as in :func:`from_mapping`."""
     p = Path(path)
+    data = read_param_file(p)
+    return from_mapping(base or EskfParams(), data, where=str(p), allowed=allowed, filter_name=filter_name)
+
+
+def read_param_file(path: str | Path) -> dict[str, Any]:
+    """The tables of a TOML parameter file; ValueError naming the file when it is missing
+    or not valid TOML (every estimator's parameter loader reads through this)."""
+    p = Path(path)
     try:
-        data = tomllib.loads(p.read_text())
+        return tomllib.loads(p.read_text())
     except FileNotFoundError:
         raise ValueError(f"{p}: no such parameter file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
-    return from_mapping(base or EskfParams(), data, where=str(p), allowed=allowed, filter_name=filter_name)
 
 
 #: Below this IMU rate (Hz) the default process noise is too small (see imu_rate_warning).
