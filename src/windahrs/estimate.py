@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from windahrs.flight import FlightError
 from windahrs.store import atomic_h5, open_h5, read_errors, read_record, write_record
 
-__all__ = ["ESTIMATE_FORMAT", "Estimate", "Innovations", "load_estimate", "save_estimate"]
+__all__ = ["ESTIMATE_FORMAT", "Estimate", "EstimatorWarning", "Innovations", "load_estimate", "save_estimate"]
 
 F64 = NDArray[np.float64]
 ESTIMATE_FORMAT = "windahrs.estimate"
@@ -35,6 +35,15 @@ STATE_LABELS: dict[str, tuple[str, ...]] = {
     "ba": ("ba_x", "ba_y", "ba_z"),
     "quat": ("q_w", "q_x", "q_y", "q_z"),
 }
+
+
+#: Below this share of a gated sensor's samples accepted over a flight, the Estimate warns.
+LOW_ACCEPTANCE = 0.5
+
+
+class EstimatorWarning(UserWarning):
+    """Something a user must know about an estimate: a reset of the state to a sensor that
+    its gate had kept out, or a sensor whose samples were mostly rejected."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +77,10 @@ class Estimate:
     None; cov (N, n, n) error-state covariance with ``state_labels`` (n,) naming each
     dimension (attitude errors are body-frame rotation vectors, rad) or None;
     innovations per sensor; skipped: NaN samples skipped per stream; params: text of the
-    parameters used; meta: free-form.
+    parameters used; meta: free-form. resets: per sensor (its innovation key), the resets
+    of the state to it after its gate had kept it out for the filter's ``reset_timeout``,
+    (K, 3) rows of [t s, size (rad for an attitude reset, m/s for a velocity reset), how
+    long the sensor had been kept out s]; :meth:`warnings` says them in words.
     """
 
     filter: str
@@ -83,6 +95,7 @@ class Estimate:
     skipped: dict[str, int] = field(default_factory=dict)
     params: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
+    resets: dict[str, F64] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -113,6 +126,28 @@ class Estimate:
         """Attitude error covariance (N, 3, 3), body-frame rotation vector, rad^2."""
         return self.block("att_")
 
+    def warnings(self) -> list[str]:
+        """One line per thing the user must know, naming the estimator, what and when: each
+        reset (see ``resets``), and each gated sensor of which less than
+        :data:`LOW_ACCEPTANCE` of the samples were accepted."""
+        out = []
+        for sensor, rows in self.resets.items():
+            for t, size, out_for in rows:
+                if sensor == "accel":
+                    what = f"attitude levelled to it by {np.degrees(size):.1f} deg, gyro bias reset"
+                elif sensor == "gnss":
+                    what = f"velocity reset to it by {size:.2f} m/s, attitude spread reopened"
+                else:
+                    what = f"state reset to it by {size:.3g}"
+                out.append(f"{self.filter}: {sensor} rejected for {out_for:.1f} s; at t = {t:.2f} s {what}")
+        for sensor, inn in self.innovations.items():
+            n = len(inn.accepted)
+            share = float(np.mean(inn.accepted)) if n else 1.0
+            if n >= 10 and share < LOW_ACCEPTANCE:
+                out.append(f"{self.filter}: only {100 * share:.0f} % of {n} {sensor} samples accepted "
+                           "(gated out: a disturbed sensor, or a lost state)")
+        return out
+
 
 def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
     """Write an Estimate to HDF5 (format ``windahrs.estimate`` v1), atomically."""
@@ -133,6 +168,9 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
         meta = f.create_group("meta")
         for k, v in est.meta.items():
             meta.attrs[k] = v
+        rs = f.create_group("resets")
+        for k, v in est.resets.items():
+            rs.create_dataset(k, data=v)
     return Path(path)
 
 
@@ -152,5 +190,6 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             innovations=inns,
             skipped={k: int(v) for k, v in f["skipped"].attrs.items()},
             meta=dict(f["meta"].attrs.items()),
+            resets={k: np.asarray(d[()], dtype=np.float64) for k, d in f["resets"].items()} if "resets" in f else {},
             **arrays,
         )

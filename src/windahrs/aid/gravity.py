@@ -51,9 +51,24 @@ from windahrs.core.layout import (
 from windahrs.core.quat import (
     _dcm9,
 )
+from windahrs.core.reset import (
+    accepted_at,
+    level_to,
+    log_reset,
+    reset_gyro_bias,
+    set_attitude_cov,
+    timed_out,
+)
+
+#: cos of the tilt disagreement beyond which the filter has lost gravity (45 deg: no sustained
+#: flight manoeuvre but aerobatics holds a horizontal acceleration of 1 g, so the (low-passed)
+#: specific force of a filter that knows its tilt stays within it; the gate rejects such a
+#: measurement for good, and an accepted one cannot turn a filter that is upside down, where
+#: the gravity innovation has no gradient).
+LOST_COS = math.cos(math.radians(45.0))
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
-PARAMS = ("accel_sigma", "accel_norm_gate", "accel_compensation", "accel_lowpass", "gate_accel")
+PARAMS = ("accel_sigma", "accel_norm_gate", "accel_compensation", "accel_lowpass", "gate_accel", "reset_timeout")
 
 
 @njit(inline="always", **_JIT)
@@ -90,11 +105,24 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
         fx, fy, fz = x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
         has_k = False
+    sensor = np.int64(INN_ACCEL)
     if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
-        _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
+        _log(cfg, flags, inn, acc, nu, sensor, t, np.int64(3), np.nan, np.bool_(False))
         return
     y0, y1, y2 = c[6] * -g, c[7] * -g, c[8] * -g  # C_bn (-g_n)
+    gx, gy, gz = (fx - k0, fy - k1, fz - k2) if has_k else (fx, fy, fz)
+    # the state still knows gravity while the measured down direction is within 45 deg of
+    # its C_bn e_3 = -y / g, accepted or not (a sustained acceleration is gated out, and
+    # the filter rightly coasts on the gyro through it)
+    if (gx * y0 + gy * y1 + gz * y2) > LOST_COS * g * math.sqrt(gx * gx + gy * gy + gz * gz):
+        accepted_at(x, sensor, t)
+    elif timed_out(prm, x, sensor, t):  # gravity far off the state for too long: level to it
+        angle = level_to(x, -gx, -gy, -gz)
+        set_attitude_cov(cfg, prm, x, P, work)
+        reset_gyro_bias(cfg, prm, x, P)
+        log_reset(cfg, flags, inn, acc, work, x, sensor, t, angle)
+        return
     h0, h1, h2 = y0, y1, y2
     if has_k:
         h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
@@ -105,5 +133,5 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         h0, h1, h2 = h0 + x[X_BA], h1 + x[X_BA + 1], h2 + x[X_BA + 2]
         nsup = _bias_rows(work, sup[0], iba, nsup)
     nu[0], nu[1], nu[2] = fx - h0, fy - h1, fz - h2
-    sensor, m, ns = np.int64(INN_ACCEL), np.int64(3), np.int64(nsup)
+    m, ns = np.int64(3), np.int64(nsup)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_ACC])

@@ -58,9 +58,12 @@ from windahrs.core.layout import (
 from windahrs.core.quat import (
     _dcm9,
     _euler,
+    _qmul,
+    _qnormalize,
     _quat_from_euler,
     _wrap_pi,
 )
+from windahrs.core.reset import accepted_at, log_reset, set_attitude_cov, timed_out
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = (
@@ -72,7 +75,13 @@ PARAMS = (
     "mag_norm_gate",
     "mag_dip_gate",
     "gate_mag",
+    "reset_timeout",
 )
+#: A heading further than this (rad) from the field's has lost it: a magnetic disturbance
+#: that the norm and dip checks let through bends the field by far less (45 deg, as the
+#: gravity aid source's tilt, :data:`windahrs.aid.gravity.LOST_COS`).
+LOST_HEADING = math.radians(45.0)
+
 #: ... and of its hard-iron states (error-state filters only).
 BIAS_PARAMS = ("init_mag_bias", "mag_bias_noise")
 
@@ -155,10 +164,18 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])
         x[X_TMBAR] = t
         mx, my, mz = x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2]
+    sensor = np.int64(INN_MAG)
     if (prm[R_MAG_NGATE] > 0 or prm[R_MAG_DGATE] > 0) and _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
         md = np.int64(3) if mode == MAG_3D else np.int64(1)
-        _log(cfg, flags, inn, acc, nu, np.int64(INN_MAG), t, md, np.nan, np.bool_(False))
+        _log(cfg, flags, inn, acc, nu, sensor, t, md, np.nan, np.bool_(False))
+        accepted_at(x, sensor, t)  # a disturbed field: the gate is not keeping it out
+        return
+    d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
+    if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
+        accepted_at(x, sensor, t)
+    elif timed_out(prm, x, sensor, t):
+        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
         return
     if mode == MAG_3D:
         c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
@@ -173,7 +190,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             h0, h1, h2 = y0 + x[X_BM], y1 + x[X_BM + 1], y2 + x[X_BM + 2]
             nsup = _bias_rows(work, sup[0], ibm, nsup)
         nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
-        sensor, m, ns = np.int64(INN_MAG), np.int64(3), np.int64(nsup)
+        m, ns = np.int64(3), np.int64(nsup)
         _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
         return
     sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
@@ -187,7 +204,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         work[W_H, 0], work[W_H, 1], work[W_H, 2] = c[6], c[7], c[8]
         sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
         work[W_R, 0] = sigma**2
-        sensor, m, ns = np.int64(INN_MAG), np.int64(1), np.int64(3)
+        m, ns = np.int64(1), np.int64(3)
         _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
         return
     # heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate
@@ -197,5 +214,29 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, math.sin(roll) / cp, math.cos(roll) / cp
     sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
     work[W_R, 0] = sigma**2
-    sensor, m, ns = np.int64(INN_MAG), np.int64(1), np.int64(3)
+    m, ns = np.int64(1), np.int64(3)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+
+
+@njit(**_JIT)
+def _heading_offset(cfg, x, mx, my, mz, rx, ry):
+    """The rotation about the nav vertical, rad, that turns the field sample m (body; less
+    the hard iron when estimated) onto the reference's heading."""
+    if cfg[C_IBM] >= 0:
+        mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    n0 = c[0] * mx + c[1] * my + c[2] * mz
+    n1 = c[3] * mx + c[4] * my + c[5] * mz
+    return _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
+
+
+@njit(**_JIT)
+def _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d):
+    """The field's heading d rad off the state's for reset_timeout: turn the attitude about
+    the nav vertical by d, reopen the attitude's spread (PX4 EKF2 resets its yaw to the
+    magnetometer likewise)."""
+    h = 0.5 * d
+    q = _qmul(math.cos(h), 0.0, 0.0, math.sin(h), x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    set_attitude_cov(cfg, prm, x, P, work)
+    log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_MAG), t, abs(d))

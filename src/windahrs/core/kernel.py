@@ -12,6 +12,7 @@ Nothing is allocated inside the loop.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -80,6 +81,7 @@ from windahrs.core.layout import (
     COMP_NONE,
     F64,
     I64,
+    INN_RESET,
     K_SKIP,
     KIND_INS,
     KIND_MEKF,
@@ -114,6 +116,7 @@ from windahrs.core.layout import (
     R_INI_Q,
     R_INI_V,
     R_INI_W,
+    R_INI_WIN,
     R_MAG_DGATE,
     R_MAG_LP,
     R_MAG_NGATE,
@@ -127,6 +130,7 @@ from windahrs.core.layout import (
     R_P0_V,
     R_P0_W,
     R_P0_WV,
+    R_RESET_TOUT,
     R_SA2,
     R_SB2,
     R_SBA2,
@@ -145,6 +149,7 @@ from windahrs.core.layout import (
     S_INIT,
     S_MBAR,
     S_VGNSS,
+    S_WIN,
     S_WPEND,
     SENSOR_ROWS,
     SENSOR_STREAMS,
@@ -157,9 +162,13 @@ from windahrs.core.layout import (
     X_FLAST,
     X_FMAG,
     X_FV,
+    X_FWIN,
     X_MBAR,
+    X_NWIN,
     X_Q,
     X_TIMU,
+    X_TOK,
+    X_TWIN0,
     X_V,
     X_W,
     KernelState,
@@ -174,7 +183,8 @@ from windahrs.core.quat import (
     _triad,
     _xi_into,
 )
-from windahrs.estimate import Estimate, Innovations
+from windahrs.core.reset import set_attitude_cov
+from windahrs.estimate import Estimate, EstimatorWarning, Innovations
 from windahrs.filters.base import (
     EVENT_AIR,
     EVENT_GNSS,
@@ -193,10 +203,13 @@ from windahrs.models.error_state import Layout
 
 @njit(**_JIT)
 def _try_init(cfg, prm, x, flags, P, work):
-    """Initialise once every sample it waits for is in: attitude by TRIAD (or the given
+    """Initialise once every sample it waits for is in: attitude by TRIAD from the mean
+    specific force of the first init_window seconds and the latest field (or the given
     initial state), the covariance (on the quaternion for the additive form), the field
-    reference, the low-pass means."""
-    if flags[S_INIT] == 1 or flags[S_FLAST] == 0:
+    reference, the low-pass means. x[X_TIMU]: the time of the last IMU sample."""
+    if flags[S_INIT] == 1 or flags[S_WIN] == 0:
+        return
+    if cfg[C_INI] == 0 and x[X_TIMU] - x[X_TWIN0] < prm[R_INI_WIN]:
         return
     if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:
         return
@@ -206,7 +219,7 @@ def _try_init(cfg, prm, x, flags, P, work):
         q = (prm[R_INI_Q], prm[R_INI_Q + 1], prm[R_INI_Q + 2], prm[R_INI_Q + 3])
     else:
         q = _triad(
-            x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2],
+            x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2],
             flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
             cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
         )  # fmt: skip
@@ -234,30 +247,40 @@ def _try_init(cfg, prm, x, flags, P, work):
             P[iba + off + a, iba + off + a] = prm[R_P0_BA]
         if cfg[C_IBM] >= 0:
             P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm[R_P0_BM]
-    if cfg[C_ADD] == 1:
-        # quat_cov_from_att_cov: 1/4 Xi P_att Xi^T with P_att = var I
-        Xi = work[W_M + 4 : W_M + 8]
-        _xi_into(q[0], q[1], q[2], q[3], Xi)
-        var = prm[R_P0_ATT]
-        for r in range(4):
-            for c in range(4):
-                s = 0.0
-                for k in range(3):
-                    s += Xi[r, k] * var * Xi[c, k]
-                P[r, c] = 0.25 * s
-    else:
-        for a in range(3):
-            P[a, a] = prm[R_P0_ATT]
+    set_attitude_cov(cfg, prm, x, P, work)
     if flags[S_FMAG] == 1:
         _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
     elif cfg[C_SITE_MAG] == 1:
         _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
     if prm[R_ACC_LP] > 0:
         for a in range(3):
-            x[X_FBAR + a] = x[X_FLAST + a]
+            x[X_FBAR + a] = x[X_FWIN + a]
         flags[S_FBAR] = 1
     flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
+    for s in range(N_SENSORS):  # every aid source's reset clock starts now
+        x[X_TOK + s] = x[X_TIMU]
     flags[S_INIT] = 1
+
+
+@njit(**_JIT)
+def _window_add(x, flags, t, row):
+    """One IMU sample row = [w_b, f_b] at t s into the initialisation window: the running
+    mean of the specific force, rotated into the current body frame by the gyro increment
+    (bias unknown yet: a window of a second turns it by a bias's worth of degrees at most)."""
+    if flags[S_WIN] == 0:
+        x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2] = row[3], row[4], row[5]
+        x[X_NWIN] = 1.0
+        x[X_TWIN0] = t
+        flags[S_WIN] = 1
+        return
+    dt = t - x[X_TIMU]
+    if dt > 0:
+        e = _qexp(row[0] * dt, row[1] * dt, row[2] * dt)
+        _rotate_into(_dcm9(e[0], e[1], e[2], e[3]), x, np.int64(X_FWIN))
+    n = x[X_NWIN] + 1.0
+    x[X_NWIN] = n
+    for a in range(3):
+        x[X_FWIN + a] += (row[3 + a] - x[X_FWIN + a]) / n
 
 
 
@@ -291,8 +314,9 @@ def imu_clock(cfg, prm, x, flags, P, work, t, row):
     x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = row[3], row[4], row[5]
     flags[S_FLAST] = 1
     if flags[S_INIT] == 0:
-        _try_init(cfg, prm, x, flags, P, work)
+        _window_add(x, flags, t, row)
         x[X_TIMU] = t
+        _try_init(cfg, prm, x, flags, P, work)
         return -1.0
     dt = t - x[X_TIMU]
     x[X_TIMU] = t
@@ -302,11 +326,10 @@ def imu_clock(cfg, prm, x, flags, P, work, t, row):
 @njit(inline="always", **_JIT)
 def mag_ready(cfg, prm, x, flags, P, work, row):
     """Every filter's first step at a magnetometer sample row[:3] T: before initialisation
-    keep the first sample for the initial heading; returns whether initialised."""
+    keep the latest sample for the initial heading; returns whether initialised."""
     if flags[S_INIT] == 0:
-        if flags[S_FMAG] == 0:
-            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
-            flags[S_FMAG] = 1
+        x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
+        flags[S_FMAG] = 1
         _try_init(cfg, prm, x, flags, P, work)
         return False
     return True
@@ -392,9 +415,9 @@ def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     iv, iw = cfg[C_IV], cfg[C_IW]
     if flags[S_INIT] == 0:
         q = (1.0, 0.0, 0.0, 0.0)
-        if flags[S_FLAST] == 1:
+        if flags[S_WIN] == 1:  # the tilt of the window's mean so far
             no = np.bool_(False)
-            q = _triad(x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2], no, 0.0, 0.0, 0.0, no, 0.0, 0.0, 0.0)
+            q = _triad(x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2], no, 0.0, 0.0, 0.0, no, 0.0, 0.0, 0.0)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q
         for a in range(3):
             out_bg[k, a] = 0.0
@@ -636,6 +659,8 @@ def make_state(
     prm[R_DRAG_KY] = 0.0 if p.drag_bcoef_y == 0 else p.air_density / (2.0 * p.drag_bcoef_y)
     prm[R_DRAG_VAR] = p.drag_sigma**2
     prm[R_GATE2_DRAG] = p.gate_drag**2
+    prm[R_INI_WIN] = p.init_window
+    prm[R_RESET_TOUT] = p.reset_timeout
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -649,10 +674,12 @@ def make_state(
             prm[R_INI_W : R_INI_W + 3] = _vec(ini.wind_n, 3, "wind_n")
     flags = np.zeros(N_FLAGS, dtype=np.int64)
     flags[L_FIRST : L_FIRST + N_SENSORS] = -1
+    x = np.zeros(N_X)
+    x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
     return KernelState(
         cfg=cfg,
         prm=prm,
-        x=np.zeros(N_X),
+        x=x,
         flags=flags,
         P=np.zeros((n_pad, n_pad)),
         work=np.zeros((N_WORK, max(n_pad, NMAX))),  # (scratch rows span P's columns)
@@ -666,7 +693,7 @@ def _innovations(st: KernelState, mag_mode: str) -> dict[str, Innovations]:
     """The logs as Estimate innovations, keyed in the order sensors first logged."""
     cnt, first = st.flags[L_CNT : L_CNT + N_SENSORS], st.flags[L_FIRST : L_FIRST + N_SENSORS]
     out: dict[str, Innovations] = {}
-    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0), key=lambda s: int(first[s])):
+    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0 and s != INN_RESET), key=lambda s: int(first[s])):
         o, c = int(st.cfg[C_OFF + s]), int(cnt[s])
         name = SENSORS[s]
         rows = 1 if name == "mag" and mag_mode == "heading" else SENSOR_ROWS[s]
@@ -677,6 +704,25 @@ def _innovations(st: KernelState, mag_mode: str) -> dict[str, Innovations]:
             accepted=st.acc[o : o + c].copy(),
         )
     return out
+
+
+def _resets(st: KernelState) -> dict[str, F64]:
+    """The reset log as ``Estimate.resets``: per sensor key, (K, 3) rows [t, size, out for]."""
+    o, c = int(st.cfg[C_OFF + INN_RESET]), int(st.flags[L_CNT + INN_RESET])
+    rows = st.inn[o : o + c]
+    out: dict[str, F64] = {}
+    for s in np.unique(rows[:, 1]).astype(int):
+        mine = rows[rows[:, 1] == s]
+        out[SENSORS[s]] = np.column_stack([mine[:, 0], mine[:, 2], mine[:, 3]])
+    return out
+
+
+def warn_about(est: Estimate) -> Estimate:
+    """Emit each of ``est.warnings()`` as an :class:`~windahrs.estimate.EstimatorWarning`;
+    returns est."""
+    for line in est.warnings():
+        warnings.warn(line, EstimatorWarning, stacklevel=3)
+    return est
 
 
 def _grow(st: KernelState) -> KernelState:
@@ -785,7 +831,7 @@ class CompiledEstimator(Estimator):
         cov = np.empty((N, d, d))
         run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
         skipped = st.flags[K_SKIP : K_SKIP + 4]
-        return Estimate(
+        return warn_about(Estimate(
             filter=self.label,
             t=flight.imu.t.copy(),
             q_nb=q,
@@ -797,7 +843,8 @@ class CompiledEstimator(Estimator):
             innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
-        )
+            resets=_resets(st),
+        ))
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()

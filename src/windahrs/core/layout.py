@@ -46,6 +46,9 @@ AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
     ("tas", "air", 1, ""),
     ("sideslip", "air", 1, ""),
     ("drag", "imu", 2, "xy"),
+    # not a sensor: the resets of the state to a sensor that its gate kept out too long
+    # (rows: the sensor's index in this table, the size of the reset, how long it was out)
+    ("reset", "imu", 3, ""),
 )
 SENSORS = tuple(a[0] for a in AID_LOGS)
 SENSOR_STREAMS = tuple(a[1] for a in AID_LOGS)
@@ -56,6 +59,7 @@ N_SENSORS = len(SENSORS)
 INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SENSORS.index("gnss")
 INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")
 INN_DRAG = SENSORS.index("drag")
+INN_RESET = SENSORS.index("reset")
 
 # cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
 C_KIND = 0  # KIND_*
@@ -127,7 +131,9 @@ R_DRAG_KY = 49
 R_DRAG_VAR = 50  # drag_sigma^2
 R_GATE2_DRAG = 51
 R_P0_WV = 52  # initial vertical-wind variance (0: held at zero)
-N_PRM = 53
+R_INI_WIN = 53  # init_window, s: the specific force averaged before the attitude is initialised
+R_RESET_TOUT = 54  # reset_timeout, s (0: never reset)
+N_PRM = 55
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -148,7 +154,11 @@ X_BM = 40  # (3,) magnetometer bias
 X_FBAR = 43  # (3,) low-passed specific force, body
 X_MBAR = 46  # (3,) low-passed magnetic field, body
 X_TMBAR = 49  # time of the last magnetometer sample in it
-N_X = 50
+X_FWIN = 50  # (3,) mean specific force of the initialisation window, current body frame
+X_NWIN = 53  # samples in it
+X_TWIN0 = 54  # time of its first sample
+X_TOK = 55  # (N_SENSORS,) time each aid source was last accepted (NaN: not yet initialised)
+N_X = X_TOK + N_SENSORS
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -163,8 +173,9 @@ S_WPEND = 8  # wind to be initialised from the next air sample
 S_SEQ = 9  # sensors that have logged so far
 S_FBAR = 10  # the low-passed specific force is set
 S_MBAR = 11  # the low-passed magnetic field is set
-K_SKIP = 12  # (4,) NaN samples skipped: imu, mag, gnss, air
-L_CNT = 16  # (N_SENSORS,) log rows used per sensor
+S_WIN = 12  # the initialisation window has a sample
+K_SKIP = 13  # (4,) NaN samples skipped: imu, mag, gnss, air
+L_CNT = 17  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 

@@ -53,7 +53,7 @@ from windahrs.core.quat import (
 #: The parameters of the process models (fields of :class:`windahrs.filters.params.EskfParams`):
 #: attitude and gyro bias (every filter), the rate-proportional gyro noise (error-state only),
 #: the INS (velocity from the accelerometer, its bias), the wind states.
-ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_bias")
+ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_bias", "init_window")
 GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
 INS_PARAMS = ("accel_noise", "accel_bias_noise", "init_accel_bias", "init_v")
 WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")

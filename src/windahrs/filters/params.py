@@ -102,6 +102,20 @@ class EskfParams:
 
     Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
     init_wind m/s, init_accel_bias m/s^2.
+
+    Start and recovery. init_window s: without a given initial state, the attitude is
+    initialised from the mean specific force over the first init_window seconds of IMU
+    samples (rotated into the current body frame by the gyro, as VQF averages its first
+    samples instead of trusting one), not from one sample: rotor vibration of several
+    m/s^2 averages out over about a hundred samples, and a multirotor's attitude loop
+    (about 1 Hz) over a second (default 1 s; 0: the first sample). reset_timeout s: when
+    the accelerometer's gravity measurement ([mekf], [mekf-air], [ekf7], [ekf10]) or GNSS
+    velocity ([ins-wind]) has been rejected by its gate for this long, the state is reset
+    to the measurement instead (attitude tilt and gyro bias to the specific force; velocity
+    to GNSS, with the attitude's spread reopened), logged in ``Estimate.resets`` and
+    warned about: a gate that trusts a wrong state must not lock the filter out for good
+    (default 5 s, PX4 EKF2_NOAID_TOUT, the longest EKF2 dead-reckons before it resets to
+    its aiding; 0: never).
     """
 
     gyro_noise: float = 0.01 * DEG
@@ -147,6 +161,8 @@ class EskfParams:
     drag_sigma: float = math.sqrt(2.5)
     gate_drag: float = 5.0
     air_density: float = 1.225
+    init_window: float = 1.0
+    reset_timeout: float = 5.0
 
     def __post_init__(self) -> None:
         choices = {

@@ -1,0 +1,133 @@
+"""Resets of the compiled filters' state: what an aid source does when its gate has kept its
+measurement out for longer than ``reset_timeout`` (PX4 EKF2 resets to its aiding after
+EKF2_NOAID_TOUT of rejections; ArduPilot's EKF3 likewise), and the attitude covariance that
+initialisation and every reset set.
+
+A gate that trusts a wrong state rejects every measurement that would fix it: after an
+upside-down start, a gyro spike or a long outage, the innovations stay beyond the gate for
+good. Each aid source therefore remembers when it was last accepted (``x[X_TOK + sensor]``,
+NaN until initialisation) and, past the timeout, resets the states it observes to its
+measurement, reopens their spread, and logs the reset in the ``reset`` log (the sensor,
+the size of the reset, how long the sensor had been out), which
+:class:`~windahrs.estimate.Estimate` carries as ``resets`` and warns about.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from windahrs.core.kalman import _log
+from windahrs.core.layout import (
+    _JIT,
+    C_ADD,
+    C_IBG,
+    C_N,
+    INN_RESET,
+    R_P0_ATT,
+    R_P0_BG,
+    R_RESET_TOUT,
+    W_M,
+    W_NU,
+    X_BG,
+    X_Q,
+    X_TOK,
+)
+from windahrs.core.quat import _dcm9, _qmul, _qnormalize, _xi_into
+
+
+@njit(**_JIT)
+def accepted_at(x, sensor, t):
+    """Remember that ``sensor`` was accepted at t s."""
+    x[X_TOK + sensor] = t
+
+
+@njit(**_JIT)
+def timed_out(prm, x, sensor, t):
+    """Whether ``sensor`` has been kept out by its gate for longer than reset_timeout
+    (never before initialisation, nor with reset_timeout 0)."""
+    tout = prm[R_RESET_TOUT]
+    return tout > 0 and t - x[X_TOK + sensor] > tout
+
+
+@njit(**_JIT)
+def log_reset(cfg, flags, inn, acc, work, x, sensor, t, size):
+    """Log a reset to ``sensor`` at t s of the given size (rad or m/s) and restart its clock."""
+    nu = work[W_NU]
+    out_for = t - x[X_TOK + sensor]
+    nu[0], nu[1], nu[2] = float(sensor), size, out_for
+    _log(cfg, flags, inn, acc, nu, np.int64(INN_RESET), t, np.int64(3), np.nan, np.bool_(True))
+    x[X_TOK + sensor] = t
+
+
+@njit(**_JIT)
+def clear_rows(cfg, P, i0, k):
+    """Zero the k rows and columns of P from covariance index i0 (before setting their spread)."""
+    n = cfg[C_N]
+    for i in range(i0, i0 + k):
+        for j in range(n):
+            P[i, j] = 0.0
+            P[j, i] = 0.0
+
+
+@njit(**_JIT)
+def set_attitude_cov(cfg, prm, x, P, work):
+    """The attitude's spread to init_att^2 per axis, uncorrelated with the other states
+    (additive form: on the quaternion, ``1/4 Xi var Xi^T``)."""
+    var = prm[R_P0_ATT]
+    if cfg[C_ADD] == 1:
+        clear_rows(cfg, P, 0, 4)
+        Xi = work[W_M + 4 : W_M + 8]
+        _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
+        for r in range(4):
+            for c in range(4):
+                s = 0.0
+                for k in range(3):
+                    s += Xi[r, k] * var * Xi[c, k]
+                P[r, c] = 0.25 * s
+    else:
+        clear_rows(cfg, P, 0, 3)
+        for a in range(3):
+            P[a, a] = var
+
+
+@njit(**_JIT)
+def reset_gyro_bias(cfg, prm, x, P):
+    """The gyro bias to zero with its initial spread: a bias learnt while the attitude was
+    lost is not to be trusted."""
+    i0 = cfg[C_IBG] + cfg[C_ADD]
+    clear_rows(cfg, P, i0, 3)
+    for a in range(3):
+        x[X_BG + a] = 0.0
+        P[i0 + a, i0 + a] = prm[R_P0_BG]
+
+
+@njit(**_JIT)
+def level_to(x, ux, uy, uz, dx=0.0, dy=0.0, dz=1.0):
+    """Rotate the attitude by the smallest body-frame rotation that makes the nav-frame
+    direction d (default: down) point along (ux, uy, uz) in body axes (neither need be
+    unit), keeping the heading as far as a tilt change allows; returns the angle turned, rad."""
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    # C_bn d: the estimated direction of d in the body
+    bx, by, bz = c[0] * dx + c[3] * dy + c[6] * dz, c[1] * dx + c[4] * dy + c[7] * dz, c[2] * dx + c[5] * dy + c[8] * dz
+    nb = math.sqrt(bx * bx + by * by + bz * bz)
+    bx, by, bz = bx / nb, by / nb, bz / nb
+    n = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ax, ay, az = ux / n, uy / n, uz / n
+    # C_nb_new = C_nb C(d): d turns the measured down a onto the estimated b
+    dot = ax * bx + ay * by + az * bz
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    if dot < -1.0 + 1e-12:  # opposite: half a turn about any axis normal to a
+        if abs(ax) < 0.9:
+            cx, cy, cz = 0.0, -az, ay
+        else:
+            cx, cy, cz = az, 0.0, -ax
+        s = math.sqrt(cx * cx + cy * cy + cz * cz)
+        d = (0.0, cx / s, cy / s, cz / s)
+    else:
+        d = _qnormalize(1.0 + dot, cx, cy, cz)
+    q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], d[0], d[1], d[2], d[3])
+    x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    return math.acos(min(1.0, max(-1.0, dot)))
