@@ -37,13 +37,13 @@ def test_defaults_not_installed_or_lacking_a_sensor_are_left_out_with_a_note(
     installed = [n for n in registry.names() if n != "vqf"]
     monkeypatch.setattr(registry, "names", lambda: installed)
     sel = cmp.select_estimators(None)
-    assert list(sel.estimators) == ["mekf", "ins-wind"] and not sel.explicit
+    assert list(sel.estimators) == ["auto", "mekf", "ins-wind"] and not sel.explicit
     assert sel.notes == (f"Default filter vqf left out: it {cmp.NOT_INSTALLED}.",)
     asked = cmp.select_estimators(["mekf", "vqf"])
     assert list(asked.estimators) == ["mekf"] and asked.failures == {"vqf": cmp.NOT_INSTALLED}
     no_gnss = sim.replace(gnss=None)
     kept = sel.for_flight(no_gnss)
-    assert list(kept.estimators) == ["mekf"]
+    assert list(kept.estimators) == ["auto", "mekf"]
     assert kept.notes[1].startswith("Default filter ins-wind left out: filter 'ins-wind' needs GNSS velocity")
     assert asked.for_flight(no_gnss) is asked  # explicit filters are run and fail instead
     with pytest.raises(ValueError, match="unknown 'nope'"):

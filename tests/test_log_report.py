@@ -405,7 +405,8 @@ def test_cli_report_defaults_and_align_without_reference(files: dict[str, Path],
     assert "--align: the flight has no reference attitude; nothing to align" in err
     page = out.read_text(encoding="utf-8")
     ran = [r[0] for r in table_starting(page, "Estimators")]
-    assert ran == (["mekf", "vqf"] if HAVE_VQF else ["mekf"])
+    assert ran == (["auto", "mekf", "vqf"] if HAVE_VQF else ["auto", "mekf"])
+    assert "auto ran mekf on imu,mag (no GNSS velocity)." in page
     assert "Default filter ins-wind left out: filter &#x27;ins-wind&#x27; needs GNSS velocity" in page
 
 

@@ -87,26 +87,18 @@ def estimator(spec: str, **params: Any) -> Estimator:
     """The estimator of a registry spec (``"ins-wind"``, ``"paper:wind=mean"``; see
     ``windahrs filters``), the compiled implementation under the plain name, with keyword
     ``params`` as overrides of fields of its parameter record
-    (``wa.estimator("mekf", mag_mode="heading")``).
+    (``wa.estimator("mekf", mag_mode="heading")``), checked as the registry checks a spec's
+    (a field the estimator does not use is refused).
 
     Raises ValueError for an unknown name or field (the registry's message), or a value
     its parameter record rejects.
     """
-    import dataclasses
-
-    from windahrs.filters.registry import make_estimator
+    from windahrs.filters.registry import make_estimator, with_overrides
 
     est = make_estimator(spec)
     if not params:
         return est
-    record = getattr(est, "params", None)
-    known = {f.name for f in dataclasses.fields(record)} if dataclasses.is_dataclass(record) else set()
-    for key in params:
-        if key not in known:
-            make_estimator(f"{spec}:{key}=0")  # raises the registry's error for the unknown field
-            raise ValueError(f"filter {spec!r}: unknown parameter {key!r}")  # pragma: no cover
-    assert record is not None and not isinstance(record, type)
-    built = type(est)(dataclasses.replace(record, **params))  # type: ignore[call-arg]
+    built = with_overrides(est, spec.split(":")[0], params)
     built.label = spec + "".join(f":{k}={v}" for k, v in params.items())
     return built
 

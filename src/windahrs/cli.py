@@ -250,12 +250,16 @@ def _score_line(sc: Score) -> str:
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
     from windahrs.estimate import save_estimate
+    from windahrs.filters.auto import describe_choice
     from windahrs.filters.registry import make_estimator
     from windahrs.metrics import reference_of, score
 
     est = make_estimator(args.filter, args.params)
     flight = _read(args.file)
     result = est.run(flight)
+    chose = describe_choice(result)
+    if chose is not None:
+        print(chose)
     if args.out is not None:
         save_estimate(result, args.out)
         print(f"wrote {args.out}")
@@ -286,16 +290,28 @@ def _specs(text: str) -> list[str]:
 def _cmd_compare(args: argparse.Namespace) -> int:
     import json
 
-    from windahrs.experiments.compare import AlignmentError, compare
+    from windahrs.experiments.compare import AlignmentError, compare, select_estimators
+    from windahrs.filters.auto import describe_choice
     from windahrs.filters.registry import make_estimator
 
-    estimators = [make_estimator(n) for n in _specs(args.filters)]  # fail on a bad name before any work
-    flight = _read(args.file)
+    if args.filters is not None:
+        estimators = [make_estimator(n) for n in _specs(args.filters)]  # fail on a bad name before any work
+        flight = _read(args.file)
+    else:  # the defaults, less those the flight lacks a sensor for or that are not installed
+        flight = _read(args.file)
+        selection = select_estimators(None).for_flight(flight)
+        for note in selection.notes:
+            _note(note)
+        estimators = list(selection.estimators.values())
     with _bar(len(estimators), "compare") as bar:
         try:
             res = compare(flight, estimators, align=args.align, progress=lambda done, _: bar.update(done - bar.n))
         except AlignmentError as exc:
             raise UsageError(f"--align: {exc.reason}") from None
+    for _, est in res.estimates:
+        chose = describe_choice(est)
+        if chose is not None:
+            _note(chose)
     al = res.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")
@@ -424,7 +440,9 @@ def _parser() -> argparse.ArgumentParser:
         "its Estimate (attitude, bias, wind, covariance, innovations) as HDF5.",
     )
     e.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file or a log")
-    e.add_argument("--filter", required=True, metavar="NAME", help="estimator name, e.g. ins-wind")
+    e.add_argument("--filter", default="auto", metavar="NAME",
+                   help="estimator spec, e.g. ins-wind or mekf:mag_mode=heading (default: auto, which runs ins-wind "
+                   "when the flight has GNSS velocity, else mekf, and prints which)")
     e.add_argument(
         "--params",
         type=Path,
@@ -442,7 +460,11 @@ def _parser() -> argparse.ArgumentParser:
         "against the flight's truth (simulation) or reference (mocap, autopilot).",
     )
     c.add_argument("file", type=Path, metavar="FILE")
-    c.add_argument("--filters", required=True, metavar="A,B,...", help="comma-separated estimator names")
+    c.add_argument(
+        "--filters", default=None, metavar="A,B,...",
+        help=f"comma-separated estimator specs (default: {','.join(DEFAULT_REPORT_FILTERS)}, leaving out those the "
+        "flight lacks a sensor for or that are not installed)",
+    )
     c.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
     c.add_argument("--align", action="store_true", help=ALIGN_HELP)
     c.set_defaults(func=_cmd_compare)
@@ -511,7 +533,7 @@ def _parser() -> argparse.ArgumentParser:
         "total, inclination and heading RMSE per trial, and the median over trials.",
     )
     b.add_argument("dir", type=Path, metavar="DIR", help="a directory of trials (or one recording)")
-    b.add_argument("--filters", default="mekf,ekf7,vqf,vqf-offline,madgwick,mahony,imufusion",
+    b.add_argument("--filters", default="auto,mekf,ekf7,vqf,vqf-offline,madgwick,mahony,imufusion",
                    metavar="A,B,...", help="estimator specs (estimators that cannot run on a trial fail it)")
     b.add_argument("--json", action="store_true", help="print the JSON result instead of the table")
     b.add_argument("--out", type=Path, default=None, metavar="FILE", help="also write .json or a text table")

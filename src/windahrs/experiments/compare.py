@@ -51,8 +51,10 @@ __all__ = [
     "select_estimators",
 ]
 
-#: What ``windahrs report`` runs without ``--filters``.
-DEFAULT_REPORT_FILTERS: tuple[str, ...] = ("mekf", "ins-wind", "vqf")
+#: What ``windahrs report`` and ``windahrs compare`` run without ``--filters``: ``auto``
+#: (the estimator the flight's sensors support) first, then the single estimators it
+#: chooses from and the outside baseline.
+DEFAULT_REPORT_FILTERS: tuple[str, ...] = ("auto", "mekf", "ins-wind", "vqf")
 NOT_INSTALLED = "needs a package that is not installed (pip install 'windahrs[baselines]')"
 
 Progress = Callable[[int, int], None]
@@ -333,9 +335,11 @@ def run_for_report(
 ) -> ReportRun:
     """Run a selection on ``flight`` for the report: defaults the flight lacks a sensor for
     are left out (noted), a filter that fails is recorded and the others go on
-    (``on_failure(spec, why)`` is called as it happens). With ``align`` and at least one
-    result, the reference is aligned to the first result; a failed fit is noted and the
-    scores are against the reference as logged."""
+    (``on_failure(spec, why)`` is called as it happens); what ``auto`` ran is noted. With
+    ``align`` and at least one result, the reference is aligned to the first result; a
+    failed fit is noted and the scores are against the reference as logged."""
+    from windahrs.filters.auto import describe_choice
+
     sel = selection.for_flight(flight)
     results, failed = run_estimators(flight, sel.estimators, keep_going=True, progress=progress)
     if on_failure is not None:
@@ -343,6 +347,7 @@ def run_for_report(
             on_failure(spec, why)
     failures = {**sel.failures, **failed}
     notes = list(sel.notes)
+    notes += [f"{line}." for line in (describe_choice(est) for _, est in results) if line is not None]
     outcome = AlignmentOutcome()
     if align and results:
         outcome = align_reference(flight, results[0], fallback=True)

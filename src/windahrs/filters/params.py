@@ -30,8 +30,8 @@ from typing import Any, Literal
 from windahrs.conventions import DEG, G0
 
 __all__ = [
-    "ARDUPILOT_MAP", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "imu_rate_warning", "load_params", "matched_to",
-    "read_param_file",
+    "ARDUPILOT_MAP", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "changes_from_mapping", "imu_rate_warning",
+    "load_params", "matched_to", "read_param_file",
 ]
 
 #: PX4 and ArduPilot filters use per-step noise at their prediction period; densities
@@ -248,6 +248,23 @@ def from_mapping(
     refused, naming the filter; PX4 and ArduPilot names that map outside it are skipped
     with a warning (a PX4 or ArduPilot parameter file sets far more than one estimator
     uses)."""
+    changes = changes_from_mapping(data, where, allowed=allowed, filter_name=filter_name)
+    try:
+        return base.replace(**changes)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+def changes_from_mapping(
+    data: Mapping[str, Any],
+    where: str = "params",
+    *,
+    allowed: frozenset[str] | None = None,
+    filter_name: str = "",
+) -> dict[str, Any]:
+    """The fields a ``{table: {key: value}}`` mapping (the TOML layout) sets, in our names
+    and units: field -> value (checked as :func:`from_mapping` does, values not yet
+    validated by :class:`EskfParams`)."""
     every = {f.name for f in dataclasses.fields(EskfParams)}
     fields = every if allowed is None else set(allowed)
     changes: dict[str, Any] = {}
@@ -278,12 +295,9 @@ def from_mapping(
                 changes[name] = conv(float(value))
     if skipped:
         warnings.warn(
-            f"{where}: {filter_name or 'the filter'} does not use {', '.join(skipped)}; skipped", stacklevel=3
+            f"{where}: {filter_name or 'the filter'} does not use {', '.join(skipped)}; skipped", stacklevel=4
         )
-    try:
-        return base.replace(**changes)
-    except ValueError as exc:
-        raise ValueError(f"{where}: {exc}") from None
+    return changes
 
 
 def load_params(

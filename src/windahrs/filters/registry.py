@@ -14,10 +14,11 @@ from pathlib import Path
 
 from windahrs.filters.base import Estimator
 
-__all__ = ["REGISTRY", "make_estimator", "names"]
+__all__ = ["REGISTRY", "make_estimator", "names", "with_overrides"]
 
 #: name -> (module, class, one-line description)
 REGISTRY: dict[str, tuple[str, str, str]] = {
+    "auto": ("windahrs.filters.auto", "Auto", "ins-wind with GNSS velocity, else mekf: what the sensors allow"),
     "paper": ("windahrs.filters.paper", "PaperEKF", "the paper's EKF, faithful, with air-flow direction"),
     "paper-nowind": ("windahrs.filters.paper", "PaperEKFNoWind", "the paper's EKF without the air data"),
     "ekf": ("windahrs.filters.ekf", "TraditionalEKF", "traditional accelerometer+magnetometer EKF"),
@@ -85,6 +86,20 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
     est = _build(name, params_file)
     if not overrides:
         return est
+    est_new = with_overrides(est, name, overrides)
+    est_new.label = spec
+    return est_new
+
+
+def with_overrides(est: Estimator, name: str, overrides: dict[str, object]) -> Estimator:
+    """A new estimator of ``est``'s type with ``overrides`` (field -> value) on its
+    parameters. An estimator with a ``with_overrides`` method (``auto``, which passes fields
+    on to the estimator it chooses) applies them itself; otherwise each field must be one
+    its ``param_names`` lists (ValueError naming the field and the filter)."""
+    own = getattr(est, "with_overrides", None)
+    if own is not None:
+        built: Estimator = own(overrides)
+        return built
     params = getattr(est, "params", None)
     if params is None or not dataclasses.is_dataclass(params):
         raise ValueError(f"filter {name!r} takes no parameters, found {sorted(overrides)}")
@@ -96,9 +111,7 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
             raise ValueError(
                 f"filter {name!r} {what} parameter {key!r}; its parameters: {', '.join(sorted(known))}"
             )
-    est_new = type(est)(dataclasses.replace(params, **overrides))  # type: ignore[call-arg, type-var]
-    est_new.label = spec
-    return est_new
+    return type(est)(dataclasses.replace(params, **overrides))  # type: ignore[call-arg, type-var]
 
 
 def _build(name: str, params_file: str | Path | None) -> Estimator:

@@ -1,0 +1,218 @@
+"""[auto]: look at the flight and run the windahrs estimator its sensors support.
+
+The choice, from the streams the flight has (a stream counts when it has at least one
+finite sample; a logged but empty stream would leave a filter waiting for it forever):
+
+==========================  ===============================================================
+the flight has              auto runs
+==========================  ===============================================================
+GNSS velocity               [ins-wind]: the accelerometer as the INS input, GNSS velocity,
+                            the magnetometer (3-D, with its hard-iron bias) and air data
+                            (pitot and vanes) when present, wind states
+no GNSS, air data           [mekf] with its field defaults (:data:`~windahrs.filters.eskf.
+                            MEKF_FIELD`) and ``accel_compensation = "airspeed"``; the
+                            magnetometer when present
+no GNSS, no air data        [mekf] with its field defaults; the magnetometer when present
+                            (an IMU alone runs too: tilt, and a heading that drifts)
+==========================  ===============================================================
+
+Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
+subtracts ``(w - b_g) x V_air`` from the specific force, the centripetal acceleration of a
+turn at constant airspeed, and ``V_air`` is the air-data sample's own air-relative velocity
+(true airspeed along the vanes' direction, or along body x without vanes;
+:func:`windahrs.aid.air_velocity.remember_air`), which the kernel keeps for every filter
+kind. Neither a velocity state nor GNSS enters it (``tests/test_auto.py`` holds it to
+``mekf:accel_compensation=airspeed`` and shows that it changes the answer).
+
+Not chosen automatically:
+
+* the multirotor drag aid ([ins-drag]): its coefficients belong to the airframe (PX4's
+  defaults left a 3.4 m/s wind error on the simulated quadrotor, docs/RESULTS.md section 6)
+  and a flight does not say what flew it. ``auto:drag=true`` reaches it, on flights with GNSS
+  (see Parameters); ``auto:drag=true:wind_vertical=false`` is [ins-drag]'s configuration.
+* [mekf-air]: with GNSS, [ins-wind] fuses the same air data with the velocity estimated
+  rather than taken as an input.
+
+Parameters: ``auto:field=value`` (and a ``--params`` file) set fields of
+:class:`~windahrs.filters.params.EskfParams` on top of the chosen estimator's own
+defaults. A field that neither [ins-wind] nor [mekf] uses is refused when the spec is built,
+as for any estimator. A field that only one of them uses (``gnss_sigma``: the INS;
+``accel_lowpass``: [mekf]) is passed on when that one is chosen, and otherwise left out
+with its name in ``Estimate.meta["auto_ignored"]`` (and in the line ``windahrs estimate``
+prints): refusing it would make a spec fail on exactly the flights auto exists to take,
+and the field concerns a sensor or an aid the flight does not have. An explicit
+``accel_compensation`` wins over the airspeed compensation auto would choose.
+
+The output says what ran: ``Estimate.filter`` is auto's label (``"auto"``, or the spec), and
+``Estimate.meta`` holds ``auto`` (the registry spec of the estimator that ran, e.g.
+``"ins-wind"`` or ``"mekf:accel_compensation=airspeed"``: :func:`make_estimator` of it
+gives the same answers), ``sensors`` (the streams it fused, e.g. ``"imu,mag,gnss,air"``),
+``auto_reason`` and, when some overrides were not used, ``auto_ignored``.
+
+Streaming: ``auto.stream(site, has=...)`` chooses from ``has``, the streams you announce
+(default: all four, so [ins-wind]; announce only what you will feed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from windahrs.core.kernel import CompiledEstimator, CompiledStreamer
+from windahrs.estimate import Estimate
+from windahrs.filters.base import Estimator, InitialState
+from windahrs.filters.eskf import InsWind, Mekf
+from windahrs.filters.params import EskfParams, changes_from_mapping, read_param_file
+from windahrs.flight import Flight, Site
+
+__all__ = ["Auto", "AutoChoice", "describe_choice", "usable_streams"]
+
+#: The estimators auto chooses from, by registry name.
+CANDIDATES: dict[str, type[CompiledEstimator]] = {"ins-wind": InsWind, "mekf": Mekf}
+_ORDER = ("imu", "mag", "gnss", "air")
+
+
+def usable_streams(flight: Flight) -> frozenset[str]:
+    """The streams of ``flight`` with at least one finite sample ("imu", "mag", "gnss", "air")."""
+    rows: dict[str, Any] = {"imu": np.hstack([flight.imu.w_b, flight.imu.f_b])}
+    if flight.mag is not None:
+        rows["mag"] = flight.mag.mag_b
+    if flight.gnss is not None:
+        rows["gnss"] = flight.gnss.v_n
+    if flight.air is not None:
+        rows["air"] = flight.air.tas[:, None]
+    return frozenset(k for k, v in rows.items() if np.isfinite(v).all(axis=1).any())
+
+
+def _text(value: Any) -> str:
+    """A parameter value as the registry's spec parser reads it back."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+@dataclass(frozen=True)
+class AutoChoice:
+    """What auto runs for a set of streams: ``name`` ("ins-wind" or "mekf"), the built
+    ``estimator``, ``spec`` (the registry spec that builds the same estimator), ``sensors``
+    (the streams it fuses, in the order imu, mag, gnss, air), ``reason`` (one phrase) and
+    ``ignored`` (override fields the chosen estimator does not use)."""
+
+    name: str
+    estimator: CompiledEstimator
+    spec: str
+    sensors: tuple[str, ...]
+    reason: str
+    ignored: tuple[str, ...]
+
+    def meta(self) -> dict[str, str]:
+        """The entries auto adds to ``Estimate.meta``."""
+        out = {"auto": self.spec, "sensors": ",".join(self.sensors), "auto_reason": self.reason}
+        if self.ignored:
+            out["auto_ignored"] = ",".join(self.ignored)
+        return out
+
+
+class Auto(Estimator):
+    """[auto] the estimator the flight's sensors support: [ins-wind] with GNSS velocity, else
+    [mekf] (airspeed-compensated with air data); see the module docstring for the choice,
+    the parameters and the output."""
+
+    name = "auto"
+    requires = frozenset({"imu"})
+    uses = frozenset(_ORDER)
+    candidates: ClassVar[dict[str, type[CompiledEstimator]]] = CANDIDATES
+
+    def __init__(self, overrides: Mapping[str, Any] | None = None) -> None:
+        given = dict(overrides or {})
+        known = self.param_names()
+        for key in given:
+            if key not in known:
+                every = {f.name for f in dataclasses.fields(EskfParams)}
+                what = "does not use" if key in every else "has no"
+                raise ValueError(
+                    f"filter 'auto' {what} parameter {key!r} (neither {' nor '.join(self.candidates)} uses it); "
+                    f"its parameters: {', '.join(sorted(known))}"
+                )
+        EskfParams().replace(**given)  # each value checked once, here (ValueError naming the field)
+        self.overrides: dict[str, Any] = given
+
+    @classmethod
+    def param_names(cls) -> frozenset[str]:
+        """Every field one of the candidates uses."""
+        return frozenset().union(*(c.param_names() for c in cls.candidates.values()))
+
+    @classmethod
+    def load_params(cls, path: Any) -> dict[str, Any]:
+        """The overrides of a TOML parameter file (the layout of
+        :mod:`windahrs.filters.params`); fields checked against :meth:`param_names`."""
+        data = read_param_file(path)
+        return changes_from_mapping(data, str(path), allowed=cls.param_names(), filter_name=cls.name)
+
+    def with_overrides(self, overrides: Mapping[str, Any]) -> Auto:
+        """A new auto with ``overrides`` on top of this one's."""
+        return Auto({**self.overrides, **overrides})
+
+    def params_text(self) -> str:
+        return f"auto overrides {self.overrides!r}"
+
+    def choose(self, streams: Iterable[str]) -> AutoChoice:
+        """The estimator for a flight (or streamer) with ``streams`` (names from "imu",
+        "mag", "gnss", "air")."""
+        has = frozenset(streams)
+        name = "ins-wind" if "gnss" in has else "mekf"
+        extra = {"accel_compensation": "airspeed"} if name == "mekf" and "air" in has else {}
+        cls = self.candidates[name]
+        used = cls.param_names()
+        fields = {**extra, **{k: v for k, v in self.overrides.items() if k in used}}
+        ignored = tuple(k for k in self.overrides if k not in used)
+        est = cls(cls.default_params.replace(**fields))
+        spec = name + "".join(f":{k}={_text(v)}" for k, v in fields.items())
+        p = est.params
+        fused = {"imu"}
+        if "mag" in has and p.mag_mode != "off":
+            fused.add("mag")
+        if name == "ins-wind":
+            fused.add("gnss")
+            reason = "GNSS velocity present"
+            if "air" in has and p.air_mode != "off":
+                fused.add("air")
+        else:
+            reason = "no GNSS velocity"
+            if "air" in has and p.accel_compensation == "airspeed":
+                fused.add("air")
+                reason += "; air data compensates the turns"
+        est.label = spec
+        sensors = tuple(s for s in _ORDER if s in fused)
+        return AutoChoice(name, est, spec, sensors, reason, ignored)
+
+    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+        """Choose from the flight's streams (:func:`usable_streams`) and run the choice;
+        ``filter`` is auto's label and ``meta`` says what ran (:meth:`AutoChoice.meta`)."""
+        self.check(flight)
+        choice = self.choose(usable_streams(flight))
+        est = choice.estimator.run(flight, initial=initial)
+        return dataclasses.replace(est, filter=self.label, meta={**est.meta, **choice.meta()})
+
+    def streamer(
+        self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
+    ) -> CompiledStreamer:
+        """The chosen estimator's streamer, chosen from ``has`` (the streams that will be fed)."""
+        choice = self.choose(has)
+        est = choice.estimator
+        return est.streamer(site, initial=initial, has=frozenset(has) & est.uses)
+
+
+def describe_choice(estimate: Estimate) -> str | None:
+    """One line saying what auto ran for ``estimate`` (None when auto did not make it)."""
+    meta = estimate.meta
+    if "auto" not in meta:
+        return None
+    line = f"{estimate.filter} ran {meta['auto']} on {meta.get('sensors', '?')} ({meta.get('auto_reason', '')})"
+    if meta.get("auto_ignored"):
+        line += f"; not used by it: {meta['auto_ignored']}"
+    return line

@@ -1,0 +1,176 @@
+"""``auto``: the estimator the flight's sensors allow, equal to the one it chose, saying which."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import windahrs as wa
+from windahrs.cli import main
+from windahrs.estimate import Estimate, load_estimate
+from windahrs.filters.auto import describe_choice, usable_streams
+from windahrs.filters.base import merge_events
+from windahrs.filters.registry import make_estimator
+from windahrs.flight import GnssStream
+from windahrs.store import save_flight
+
+
+@pytest.fixture(scope="module")
+def fw() -> wa.Flight:
+    """A fixed wing in wind: IMU, magnetometer, GNSS velocity, pitot and vanes."""
+    return wa.simulate("fixedwing", seed=3, duration=15.0, wind=6.0)
+
+
+def assert_same(a: Estimate, b: Estimate) -> None:
+    """Bit for bit: attitude, bias, velocity, wind, covariance, innovations."""
+    for name in ("q_nb", "gyro_bias_b", "v_n", "wind_n", "cov"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None), name
+        if x is not None:
+            np.testing.assert_array_equal(x, y, err_msg=name)
+    assert a.state_labels == b.state_labels and a.innovations.keys() == b.innovations.keys()
+    for k in a.innovations:
+        np.testing.assert_array_equal(a.innovations[k].nu, b.innovations[k].nu)
+        np.testing.assert_array_equal(a.innovations[k].accepted, b.innovations[k].accepted)
+    assert a.skipped == b.skipped and a.params == b.params
+
+
+def test_with_gnss_it_is_ins_wind_fusing_everything(fw: wa.Flight) -> None:
+    est = wa.estimator("auto").run(fw)
+    assert_same(est, wa.estimator("ins-wind").run(fw))
+    assert est.filter == "auto"
+    assert est.meta == {"auto": "ins-wind", "sensors": "imu,mag,gnss,air", "auto_reason": "GNSS velocity present"}
+    assert est.wind_n is not None and set(est.innovations) >= {"gnss", "mag", "air"}
+    assert describe_choice(est) == "auto ran ins-wind on imu,mag,gnss,air (GNSS velocity present)"
+
+
+def test_without_gnss_it_is_mekf(fw: wa.Flight) -> None:
+    imu_mag = fw.replace(gnss=None, air=None)
+    est = wa.estimator("auto").run(imu_mag)
+    assert_same(est, wa.estimator("mekf").run(imu_mag))
+    assert est.meta["auto"] == "mekf" and est.meta["sensors"] == "imu,mag"
+    assert est.meta["auto_reason"] == "no GNSS velocity"
+
+
+def test_air_data_without_gnss_compensates_the_turns(fw: wa.Flight) -> None:
+    no_gnss = fw.replace(gnss=None)
+    est = wa.estimator("auto").run(no_gnss)
+    assert est.meta["auto"] == "mekf:accel_compensation=airspeed" and est.meta["sensors"] == "imu,mag,air"
+    assert_same(est, make_estimator(est.meta["auto"]).run(no_gnss))
+    plain = wa.estimator("mekf").run(no_gnss)  # the compensation acts without GNSS
+    assert np.abs(est.q_nb - plain.q_nb).max() > 1e-3
+
+
+def test_imu_only_runs_and_an_empty_stream_counts_as_absent(fw: wa.Flight) -> None:
+    bare = fw.replace(gnss=None, air=None, mag=None)
+    est = wa.estimator("auto").run(bare)
+    assert est.meta["auto"] == "mekf" and est.meta["sensors"] == "imu"
+    assert np.isfinite(est.q_nb).all()
+    assert wa.score(est, bare).rmse_tilt_deg < 10.0  # a tilt, not a failure to start
+    # a GNSS stream with no finite sample would keep the INS waiting for ever: mekf instead
+    assert fw.gnss is not None
+    dead = fw.replace(gnss=GnssStream(fw.gnss.t, np.full_like(fw.gnss.v_n, np.nan)), air=None)
+    assert usable_streams(dead) == {"imu", "mag"}
+    est = wa.estimator("auto").run(dead)
+    assert est.meta["auto"] == "mekf" and est.skipped["gnss"] == len(fw.gnss.t)
+    assert_same(est, wa.estimator("mekf").run(dead))
+
+
+def test_overrides_go_to_the_chosen_estimator_when_it_uses_them(fw: wa.Flight) -> None:
+    est = make_estimator("auto:gnss_sigma=0.5:accel_lowpass=1")
+    assert est.label == "auto:gnss_sigma=0.5:accel_lowpass=1"
+    with_gnss = est.run(fw)
+    assert with_gnss.filter == "auto:gnss_sigma=0.5:accel_lowpass=1"
+    assert with_gnss.meta["auto"] == "ins-wind:gnss_sigma=0.5" and with_gnss.meta["auto_ignored"] == "accel_lowpass"
+    assert_same(with_gnss, make_estimator("ins-wind:gnss_sigma=0.5").run(fw))
+    imu_mag = fw.replace(gnss=None, air=None)
+    without = est.run(imu_mag)
+    assert without.meta["auto"] == "mekf:accel_lowpass=1" and without.meta["auto_ignored"] == "gnss_sigma"
+    assert_same(without, make_estimator("mekf:accel_lowpass=1").run(imu_mag))
+    assert describe_choice(without) == (
+        "auto:gnss_sigma=0.5:accel_lowpass=1 ran mekf:accel_lowpass=1 on imu,mag (no GNSS velocity); "
+        "not used by it: gnss_sigma"
+    )
+    # an explicit compensation wins over auto's
+    none = make_estimator("auto:accel_compensation=none").run(fw.replace(gnss=None))
+    assert none.meta["auto"] == "mekf:accel_compensation=none" and none.meta["sensors"] == "imu,mag"
+    # the keyword form is the same
+    kw = wa.estimator("auto", gnss_sigma=0.5)
+    assert kw.label == "auto:gnss_sigma=0.5" and kw.overrides == {"gnss_sigma": 0.5}  # type: ignore[attr-defined]
+    # drag is never on by default, but can be asked for (it needs GNSS, as ins-drag does)
+    assert make_estimator("auto:drag=true").choose({"imu", "gnss"}).spec == "ins-wind:drag=true"  # type: ignore[attr-defined]
+
+
+def test_bad_overrides_fail_when_the_spec_is_built(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"filter 'auto' has no parameter 'nope' \(neither ins-wind nor mekf"):
+        make_estimator("auto:nope=1")
+    with pytest.raises(ValueError, match="mag_mode: expected one of"):
+        make_estimator("auto:mag_mode=sideways")
+    with pytest.raises(ValueError, match="filter 'auto' has no parameter 'nope'"):
+        wa.estimator("auto", nope=1)
+    p = tmp_path / "p.toml"
+    p.write_text('[windahrs]\ngnss_sigma = 0.4\n[px4]\nEKF2_GYR_NOISE = 0.015\n')
+    est = make_estimator("auto:mag_mode=heading", p)
+    assert est.overrides == {  # type: ignore[attr-defined]
+        "gnss_sigma": 0.4, "gyro_noise": pytest.approx(0.0015), "mag_mode": "heading"
+    }
+    p.write_text("[windahrs]\nwind = 3\n")
+    with pytest.raises(ValueError, match="unknown parameter 'wind'"):
+        make_estimator("auto", p)
+
+
+def test_streaming_chooses_from_the_announced_streams(fw: wa.Flight) -> None:
+    auto = wa.estimator("auto")
+    imu_mag = fw.replace(gnss=None, air=None)
+    s = auto.stream(fw.site, has={"imu", "mag"})
+    assert s.filter_name == "mekf"
+    t, kinds, vals = merge_events(imu_mag, frozenset({"imu", "mag"}))
+    for i in range(len(t)):
+        s.push(int(kinds[i]), float(t[i]), vals[i])
+    np.testing.assert_array_equal(s.state.q_nb, wa.estimator("mekf").run(imu_mag).q_nb[-1])
+    assert auto.stream(fw.site).filter_name == "ins-wind"  # every stream announced
+
+
+def test_a_quadrotor_gets_ins_wind_without_drag() -> None:
+    quad = wa.simulate("quadrotor", seed=1, duration=4.0, wind=3.0)
+    est = wa.estimator("auto").run(quad)
+    assert est.meta["auto"] == "ins-wind" and est.meta["sensors"] == "imu,mag,gnss"
+    assert "drag" not in est.innovations
+
+
+def test_cli_estimate_defaults_to_auto_and_says_what_it_ran(
+    fw: wa.Flight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    f = tmp_path / "fw.h5"
+    save_flight(fw.replace(gnss=None), f)
+    out = tmp_path / "est.h5"
+    capsys.readouterr()
+    assert main(["estimate", str(f), "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == (
+        "auto ran mekf:accel_compensation=airspeed on imu,mag,air (no GNSS velocity; air data compensates the turns)"
+    )
+    assert lines[-1].startswith("auto: RMSE vs truth from sample 50")
+    saved = load_estimate(out)
+    assert saved.filter == "auto" and saved.meta["auto"] == "mekf:accel_compensation=airspeed"
+    assert main(["filters"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].startswith("auto          ins-wind with GNSS velocity, else mekf")
+
+
+def test_cli_compare_defaults_start_with_auto(
+    fw: wa.Flight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    f = tmp_path / "fw.h5"
+    save_flight(fw.replace(gnss=None, air=None), f)
+    capsys.readouterr()
+    assert main(["compare", str(f)]) == 0
+    std = capsys.readouterr()
+    rows = [line.split()[0] for line in std.out.splitlines()[2:]]
+    assert rows[:2] == ["auto", "mekf"] and "ins-wind" not in rows
+    assert "Default filter ins-wind left out" in std.err
+    assert "windahrs: auto ran mekf on imu,mag (no GNSS velocity)" in std.err
+    auto_row, mekf_row = std.out.splitlines()[2:4]
+    assert auto_row.split()[1:] == mekf_row.split()[1:]  # the same numbers
+
