@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -544,8 +545,18 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line_warning(command: str) -> Callable[..., None]:
+    """Warnings on stderr as ``windahrs COMMAND: warning: message``, one line each."""
+
+    def show(message: Warning | str, category: type[Warning], *_: object, **__: object) -> None:
+        print(f"windahrs {command}: warning: {message}", file=sys.stderr)
+
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status."""
+    from windahrs.estimate import EstimatorWarning
     from windahrs.flight import FlightError
     from windahrs.store import StoreError
 
@@ -553,7 +564,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
-        return func(args)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", EstimatorWarning)  # each flight's, not the first only
+            warnings.showwarning = _one_line_warning(args.command)
+            return func(args)
     except (UsageError, FlightError, StoreError, ValueError, FileNotFoundError) as exc:
         print(f"windahrs {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -407,7 +407,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
 
 
 @njit(inline="always", **_JIT)
-def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
+def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
     covariance (N, d, d) (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I))."""
@@ -415,9 +415,12 @@ def record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     iv, iw = cfg[C_IV], cfg[C_IW]
     if flags[S_INIT] == 0:
         q = (1.0, 0.0, 0.0, 0.0)
-        if flags[S_WIN] == 1:  # the tilt of the window's mean so far
-            no = np.bool_(False)
-            q = _triad(x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2], no, 0.0, 0.0, 0.0, no, 0.0, 0.0, 0.0)
+        if flags[S_WIN] == 1:  # the window's mean so far, and the latest field
+            q = _triad(
+                x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2],
+                flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
+                cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
+            )  # fmt: skip
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q
         for a in range(3):
             out_bg[k, a] = 0.0
@@ -504,7 +507,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec)
             step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, row[0], row[1], row[2])
         # IMU sample k gets the state after the last event before the next IMU sample
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
-            record(cfg, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
+            record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
 
 
 # --- Python side: encoding, estimators, streamer -------------------------------------------
@@ -783,7 +786,7 @@ class CompiledStreamer(EventStreamer):
         q, bg, v, w = np.empty((1, 4)), np.empty((1, 3)), np.empty((1, 3)), np.empty((1, 3))
         cov = np.empty((1, d, d))
         st = self._st
-        record(st.cfg, st.x, st.flags, st.P, st.work, 0, q, bg, v, w, cov)
+        record(st.cfg, st.prm, st.x, st.flags, st.P, st.work, 0, q, bg, v, w, cov)
         return StateView(
             t=self._t_last,
             q_nb=q[0],

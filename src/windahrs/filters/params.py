@@ -106,9 +106,11 @@ class EskfParams:
     Start and recovery. init_window s: without a given initial state, the attitude is
     initialised from the mean specific force over the first init_window seconds of IMU
     samples (rotated into the current body frame by the gyro, as VQF averages its first
-    samples instead of trusting one), not from one sample: rotor vibration of several
-    m/s^2 averages out over about a hundred samples, and a multirotor's attitude loop
-    (about 1 Hz) over a second (default 1 s; 0: the first sample). reset_timeout s: when
+    samples instead of trusting one): rotor vibration of several m/s^2 averages out over
+    about a hundred samples, and a multirotor's attitude loop (about 1 Hz) over a second.
+    Default 0, the first sample: 1 s was measured worse on BROAD's heading (trials 02 and
+    15: 0.66 -> 1.24 and 0.78 -> 1.17 deg, cause not yet found) and no better on the ANSFL
+    flights, where a start that far off is caught by the reset below. reset_timeout s: when
     the accelerometer's gravity measurement ([mekf], [mekf-air], [ekf7], [ekf10]) or GNSS
     velocity ([ins-wind]) has been rejected by its gate for this long, the state is reset
     to the measurement instead (attitude tilt and gyro bias to the specific force; velocity
@@ -161,7 +163,7 @@ class EskfParams:
     drag_sigma: float = math.sqrt(2.5)
     gate_drag: float = 5.0
     air_density: float = 1.225
-    init_window: float = 1.0
+    init_window: float = 0.0
     reset_timeout: float = 5.0
 
     def __post_init__(self) -> None:

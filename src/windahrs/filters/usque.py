@@ -417,7 +417,7 @@ def run_usque(st, t_ev, kinds, vals, out_q, out_bg, out_vw, out_cov, rec):
         elif kind == EVENT_MAG:
             _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row)
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
-            record(cfg, x, flags, P, work, k, out_q, out_bg, out_vw, out_vw, out_cov)
+            record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_vw, out_vw, out_cov)
 
 
 # --- Python side ----------------------------------------------------------------------------
