@@ -96,3 +96,46 @@ def dataflash_bytes(n: int = 200) -> bytes:
             put(ids["GPS"], specs["GPS"][0], t + 5, 0, 3, 5.0, 53.0, -1.0)
             put(ids["XKF2"], specs["XKF2"][0], t + 6, 0, -2.5, 1.5)
     return bytes(out)
+
+
+#: The DJI log's header as the ANSFL dataset writes it, leading spaces included.
+ANSFL_GT_HEADER = (
+    "time,distance(meters),speed(m/s), compass_heading(degrees), pitch(degrees), roll(degrees),"
+    "height_above_takeoff(meters),North,East,Down"
+)
+ANSFL_IMU_HEADER = "time,Euler_X,Euler_Y,Euler_Z,Acc_X,Acc_Y,Acc_Z,Gyr_X,Gyr_Y,Gyr_Z"
+
+
+def write_ansfl_dir(directory: Any, flight: Any, *, imus: tuple[int, ...] = (1,), gt_every: int = 0) -> Any:
+    """An ANSFL flight directory (``GT.csv`` and ``IMU_<k>.csv``, as the dataset lays them
+    out) written from a simulated Flight with truth: the IMU in the DOT's axes (x forward,
+    y left, z up) and deg/s, with garbage in the DOT's own Euler columns; the DJI log at
+    ``gt_every`` truth samples (default: 10 Hz) with roll, pitch, compass heading (0-360
+    deg) and the NED position from the first sample. IMU k > 1 is IMU 1 with k-1 added to
+    the accelerometer's x, so a test can tell them apart."""
+    from pathlib import Path
+
+    from windahrs.rotation import euler_from_quat
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    imu, truth = flight.imu, flight.truth
+    flu = np.array([1.0, -1.0, -1.0])
+    gyr = np.degrees(imu.w_b) * flu
+    acc = imu.f_b * flu
+    junk = np.full((len(imu.t), 3), 123.0)
+    for k in imus:
+        a = acc + np.array([k - 1.0, 0.0, 0.0])
+        rows = np.column_stack([imu.t, junk, a, gyr])
+        np.savetxt(d / f"IMU_{k}.csv", rows, delimiter=",", header=ANSFL_IMU_HEADER, comments="", fmt="%.10g")
+    step = gt_every or max(1, round(0.1 / float(np.median(np.diff(truth.t)))))
+    t = truth.t[::step]
+    rpy = np.degrees(euler_from_quat(truth.q_nb[::step]))
+    p = truth.p_n[::step] - truth.p_n[0]
+    n = len(t)
+    rows = np.column_stack([
+        t, np.zeros(n), np.linalg.norm(truth.v_n[::step], axis=1), rpy[:, 2] % 360.0, rpy[:, 1], rpy[:, 0],
+        10.0 - p[:, 2], p,
+    ])
+    np.savetxt(d / "GT.csv", rows, delimiter=",", header=ANSFL_GT_HEADER, comments="", fmt="%.10g")
+    return d

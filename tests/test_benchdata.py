@@ -10,21 +10,27 @@ import json
 import math
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
 from conftest import require_data
-from trajectories import rotating_in_place
+from synthetic_logs import write_ansfl_dir
+from trajectories import flight_in_place, rotating_in_place
+from windahrs.cli import main
 from windahrs.estimate import Estimate
 from windahrs.experiments import benchdata
 from windahrs.experiments.align import Alignment, apply_alignment, estimate_alignment, quat_average
 from windahrs.experiments.benchdata import (
     BenchResult,
+    Skipped,
     TrialScore,
     bench_data,
     broad_errors,
+    discover_flights,
     discover_trials,
     split_error,
+    trial_names,
 )
 from windahrs.filters.registry import make_estimator, names
 from windahrs.flight import Flight, ImuStream, Reference
@@ -32,6 +38,8 @@ from windahrs.io import read_flight
 from windahrs.metrics import attitude_errors, score
 from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
 from windahrs.sim.scenario import make_scenario, simulate
+from windahrs.sim.sensors import SensorSuite
+from windahrs.store import save_flight
 
 DEG = math.pi / 180.0
 BROAD_TRIALS = 7
@@ -172,6 +180,134 @@ def test_bench_data_rejects_a_bad_spec_before_reading(tmp_path: Path) -> None:
         bench_data([tmp_path / "missing.hdf5"], ["nosuch"])
     with pytest.raises(ValueError, match="duplicates"):
         bench_data([tmp_path / "missing.hdf5"], ["mekf", "mekf"])
+
+
+def test_failed_rows_and_skipped_in_json_and_table() -> None:
+    ok = [TrialScore(t, "mekf", 1.0 + i, 0.5, 0.8, 100, 0.1) for i, t in enumerate(("a", "b"))]
+    failed = TrialScore("b", "ins-wind", math.nan, math.nan, math.nan, 0, math.nan, error="needs GNSS")
+    res = BenchResult(
+        scores=(ok[0], TrialScore("a", "ins-wind", 3.0, 2.0, 1.0, 100, 0.1), ok[1], failed),
+        trial_names=("a", "b"), filters=("mekf", "ins-wind"), skipped=(Skipped("x.ulg", "empty file"),),
+    )
+    out = json.loads(json.dumps(res.as_json(), allow_nan=False))
+    assert out["trials"][3] == {"trial": "b", "filter": "ins-wind", "error": "needs GNSS"}
+    assert out["median"]["ins-wind"] == {"total_deg": 3.0, "inclination_deg": 2.0, "heading_deg": 1.0}
+    assert out["median"]["mekf"]["total_deg"] == 1.5
+    assert out["skipped"] == [{"path": "x.ulg", "reason": "empty file"}] and "alignment" not in out
+    text = res.table()
+    assert "ins-wind    failed: needs GNSS" in text
+    assert "(over the trials each filter ran on: ins-wind on 1 of 2)" in text
+    assert text.endswith("skipped 1:\n  x.ulg: empty file")
+    never = BenchResult(scores=(failed,), trial_names=("b",), filters=("ins-wind",))
+    assert json.loads(json.dumps(never.as_json(), allow_nan=False))["median"]["ins-wind"]["total_deg"] is None
+    assert never.table().splitlines()[-2].split() == ["ins-wind", "-", "-", "-"]
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder as users have them: a simulated quadrotor without GNSS (windahrs .h5), two
+    ANSFL flights written from a simulated IMU turning in place, a damaged log, an HDF5 file of another
+    kind, a note, a hidden folder, and a link back to the top."""
+    root = tmp_path_factory.mktemp("mixed")
+    quad = simulate(make_scenario("quadrotor", wind=3.0, duration=6.0), np.random.default_rng(2))
+    (root / "sim").mkdir()
+    save_flight(quad.replace(gnss=None), root / "sim" / "quad.h5")
+    turning = flight_in_place(SensorSuite(), seed=4, duration=20.0)
+    for k in (10, 9):
+        d = write_ansfl_dir(root / "ansfl" / "Horizontal" / f"path_{k}", turning)
+        (d / "stray.ulg").write_text("a flight directory is not descended into")
+    (root / "sim" / "broken.ulg").write_text("not a ULog")
+    with h5py.File(root / "sim" / "other.h5", "w") as f:
+        f["x"] = np.zeros(3)
+    (root / "notes.txt").write_text("not a recording, not listed")
+    (root / ".cache").mkdir()
+    (root / ".cache" / "old.ulg").write_text("hidden, not listed")
+    (root / "loop").symlink_to(root, target_is_directory=True)
+    return root
+
+
+def test_discover_flights_walks_any_folder(mixed: Path, tmp_path: Path) -> None:
+    found = discover_flights(mixed)
+    # broken.ulg is a ULog by its name: reading it fails later, and bench_data skips it then
+    assert [p.relative_to(mixed).as_posix() for p in found.flights] == [
+        "ansfl/Horizontal/path_9", "ansfl/Horizontal/path_10", "sim/broken.ulg", "sim/quad.h5"
+    ]
+    assert [(Path(s.path).name, s.reason.split(":")[0]) for s in found.skipped] == [
+        ("other.h5", "unknown HDF5 layout")
+    ]
+    one = mixed / "ansfl" / "Horizontal" / "path_9"
+    assert discover_flights(one).flights == (one,)
+    assert discover_flights(mixed / "sim" / "quad.h5").flights == (mixed / "sim" / "quad.h5",)
+    with pytest.raises(FileNotFoundError, match="no such file or directory"):
+        discover_flights(tmp_path / "missing")
+    with pytest.raises(FileNotFoundError, match="no recording the readers know"):
+        discover_flights(tmp_path)
+
+
+def test_trial_names_are_stems_unless_they_repeat(tmp_path: Path) -> None:
+    a, b = tmp_path / "Horizontal" / "path_1", tmp_path / "Vertical" / "path_1"
+    assert trial_names([a, tmp_path / "x" / "t.hdf5"]) == ["path_1", "t"]
+    assert trial_names([a, b]) == ["Horizontal/path_1", "Vertical/path_1"]
+
+
+def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench-data", str(mixed), "--filters", "ins-wind,mekf", "--align", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    rows = {(r["trial"], r["filter"]): r for r in out["trials"]}
+    assert list(rows) == [(t, f) for t in ("path_9", "path_10", "quad") for f in ("ins-wind", "mekf")]
+    assert rows[("quad", "ins-wind")]["error"].startswith("filter 'ins-wind' needs GNSS velocity")
+    for key in (("path_9", "ins-wind"), ("path_10", "mekf"), ("quad", "mekf")):
+        assert 0.0 <= rows[key]["inclination_deg"] < 10.0, rows[key]
+    assert [(Path(s["path"]).name, s["reason"].split(":")[0]) for s in out["skipped"]] == [
+        ("other.h5", "unknown HDF5 layout"), ("broken.ulg", "not a readable ULog file (truncated or corrupt?)")
+    ]
+    al = out["alignment"]
+    assert al["quad"] == {"skipped": "simulation truth is in the estimators' frame and on their clock by "
+                                     "construction; nothing to align"}
+    fitted = al["path_10"]
+    assert set(fitted) == {"aligned_on", "mount_deg", "mount_rpy_deg", "mount_q", "time_offset_s",
+                           "rate_agreement", "residual_deg", "samples", "warning"}
+    # the reference is the truth at 10 Hz on the IMU's clock: nothing to align but ins-wind's own errors
+    assert fitted["aligned_on"] == "ins-wind" and fitted["mount_deg"] < 1.0 and abs(fitted["time_offset_s"]) < 0.01
+    assert fitted["rate_agreement"] > 0.99 and fitted["residual_deg"] < 2.0 and fitted["warning"] is None
+    assert set(out["median"]) == {"mekf", "ins-wind"}
+    assert out["median"]["ins-wind"]["total_deg"] == rows[("path_9", "ins-wind")]["total_deg"]  # two the same
+
+    assert main(["bench-data", str(mixed / "ansfl"), "--filters", "mekf"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("path_9: RMSE in deg\nfilter")  # no alignment line without --align
+    assert "median over 2 trials" in text and "skipped" not in text
+
+
+def test_bench_data_cli_failures(mixed: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench-data", str(mixed), "--filters", "mekf,nosuch"]) == 2
+    assert "unknown 'nosuch'" in capsys.readouterr().err
+    (tmp_path / "bad.ulg").write_text("not a ULog")
+    assert main(["bench-data", str(tmp_path), "--filters", "mekf"]) == 2
+    std = capsys.readouterr()
+    assert std.out == "" and "no readable recording" in std.err and "bad.ulg" in std.err
+
+
+def test_ansfl_flights_with_align(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """bench-data --align over real ANSFL flights: the two shortest, linked (not copied) into
+    a folder. The alignment finds the DOT's small mount and the clocks' few hundred ms."""
+    horizontal = require_data("ansfl", "Horizontal")
+    for name in ("path_12", "path_6"):
+        (tmp_path / "Horizontal").mkdir(exist_ok=True)
+        (tmp_path / "Horizontal" / name).symlink_to(horizontal / name, target_is_directory=True)
+    first = "vqf" if "vqf" in names() else "mekf"
+    assert main(["bench-data", str(tmp_path), "--filters", f"{first},ekf7", "--align", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert list(out["alignment"]) == ["path_6", "path_12"] and "skipped" not in out
+    for fields in out["alignment"].values():
+        assert fields["aligned_on"] == first
+        assert fields["mount_deg"] < 6.0, fields  # a few degrees, not a frame error (~180)
+        assert 0.1 < abs(fields["time_offset_s"]) < 0.6, fields
+        assert fields["rate_agreement"] > 0.95, fields
+    for row in out["trials"]:
+        assert "error" not in row and math.isfinite(row["inclination_deg"]), row
+        if row["filter"] == "vqf":
+            assert row["inclination_deg"] < 10.0, row
 
 
 # -- alignment ----------------------------------------------------------------------------

@@ -1,4 +1,5 @@
-"""The command line: simulate and info, their output, and their errors."""
+"""The command line: simulate and info (on every format the readers know), their output, and
+their errors."""
 
 from __future__ import annotations
 
@@ -7,8 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from synthetic_logs import ulog_bytes, write_ansfl_dir
+from test_io import make_flight, write_csv_dir
 from windahrs.cli import main
 
 
@@ -89,6 +93,34 @@ def test_info_on_truncated_and_missing_files(
     assert "truncated or corrupt" in capsys.readouterr().err
     assert main(["info", str(tmp_path / "none.h5")]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_info_on_logs_and_directories(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    ulg = tmp_path / "synthetic.ulg"
+    ulg.write_bytes(ulog_bytes())
+    assert main(["info", str(ulg)]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"file       {ulg}\nformat     ulog\nduration   ")
+    assert "imu        400 samples at 200 Hz" in text and "reference  autopilot, " in text
+
+    flight = make_flight(np.random.default_rng(3))
+    csv_dir = write_csv_dir(flight, tmp_path / "csv")
+    assert main(["info", str(csv_dir)]) == 0
+    text = capsys.readouterr().out
+    assert "format     csv" in text and "mag        100 samples at 25 Hz" in text
+    assert "reference  mocap, 80 samples at 20 Hz, heading-free" in text
+
+    from trajectories import flight_in_place
+    from windahrs.sim.sensors import SensorSuite
+
+    ansfl = write_ansfl_dir(tmp_path / "path_1", flight_in_place(SensorSuite(), seed=1, duration=3.0))
+    assert main(["info", str(ansfl)]) == 0
+    text = capsys.readouterr().out
+    assert "format     ansfl" in text and "gnss       31 samples at 10 Hz" in text
+    assert "reference  autopilot, 31 samples at 10 Hz, heading-free" in text
+
+    assert main(["info", str(tmp_path)]) == 2  # a folder of recordings is not one recording
+    assert "unknown directory format" in capsys.readouterr().err
 
 
 def test_console_script_help_lists_commands() -> None:

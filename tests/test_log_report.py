@@ -29,7 +29,7 @@ from windahrs.report.log_report import (
     describe_alignment,
     stream_stats,
 )
-from windahrs.rotation import quat_conj, quat_from_euler, quat_mul
+from windahrs.rotation import euler_from_quat, quat_conj, quat_from_euler, quat_mul
 from windahrs.sim.scenario import make_scenario, simulate
 from windahrs.store import save_flight
 
@@ -448,6 +448,16 @@ def test_cli_compare_align(files: dict[str, Path], capsys: pytest.CaptureFixture
     assert [r["aligned_on"] for r in rows] == ["mekf", "mekf"]
     assert rows[0]["mount_deg"] == pytest.approx(al.mount_angle_deg)
     assert rows[0]["time_offset_s"] == pytest.approx(al.time_offset_s)
+    # the whole alignment is in the JSON, not only in the stderr line
+    assert rows[0]["mount_rpy_deg"] == pytest.approx(np.degrees(euler_from_quat(al.q_mount)).tolist())
+    assert rows[0]["mount_q"] == pytest.approx(al.q_mount.tolist())
+    assert rows[0]["residual_deg"] == pytest.approx(al.residual_deg)
+    assert rows[0]["rate_agreement"] == pytest.approx(al.correlation)
+    assert rows[0]["samples"] == al.samples and rows[0]["warning"] is None
+    keys = set(rows[0]) - set(sc.as_dict())
+    assert keys == {"aligned_on", "mount_deg", "mount_rpy_deg", "mount_q", "time_offset_s", "rate_agreement",
+                    "residual_deg", "samples", "warning"}
+    assert {k: rows[0][k] for k in keys} == {k: rows[1][k] for k in keys}  # one alignment for every filter
     assert rows[0]["rmse_total_deg"] == pytest.approx(sc.rmse_total_deg)
 
     # a simulation's truth needs no alignment: scored as is, and said so

@@ -186,16 +186,25 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 def _cmd_bench_data(args: argparse.Namespace) -> int:
     import json
 
-    from windahrs.experiments.benchdata import bench_data, discover_trials
+    from windahrs.experiments.benchdata import bench_data, discover_flights
+    from windahrs.filters.registry import make_estimator
 
-    specs = [s.strip() for s in args.filters.split(",") if s.strip()]
-    paths = discover_trials(args.dir) if args.dir.is_dir() else [args.dir]
-    with _runs_bar(len(paths) * len(specs), "bench-data") as bar:
+    specs = _specs(args.filters)
+    for spec in specs:  # fail on a bad name or field before walking the folder
+        make_estimator(spec)
+    found = discover_flights(args.dir)
+    if not found.flights:
+        why = "; ".join(f"{s.path}: {s.reason}" for s in found.skipped)
+        raise UsageError(f"{args.dir}: no readable recording ({why})")
+    with _runs_bar(len(found.flights) * len(specs), "bench-data") as bar:
 
         def step(done: int, total: int) -> None:
             bar.update(done - bar.n)
 
-        res = bench_data(paths, specs, progress=step)
+        res = bench_data(found.flights, specs, align=args.align, skipped=found.skipped, progress=step)
+    if not res.trial_names:
+        why = "; ".join(f"{s.path}: {s.reason}" for s in res.skipped)
+        raise UsageError(f"{args.dir}: no readable recording with a reference ({why})")
     text = json.dumps(res.as_json(), indent=1)
     table = res.table()
     if args.out is not None:
@@ -218,10 +227,11 @@ def _cmd_filters(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from windahrs.store import load_flight
+    from windahrs.io import detect_format
 
-    flight = load_flight(args.file)
+    flight = _read(args.file)
     print(f"file       {args.file}")
+    print(f"format     {detect_format(args.file)}")
     print(flight.summary())
     return 0
 
@@ -368,8 +378,15 @@ ALIGN_HELP = (
     "before scoring, estimate a constant mounting rotation and time offset between the reference and the FIRST "
     "filter's estimate (put the most accurate first) and remove that one alignment for every filter, so all are "
     "scored against the same reference (fitting each filter its own would also hide its constant errors); "
-    "prints the mount angle and time offset (beside --json: on stderr). Needs a logged reference (mocap or "
-    "autopilot); a residual over 5 deg is flagged as an unreliable alignment"
+    "prints the mount angle and time offset (beside --json: on stderr, and the alignment's fields in each JSON row). "
+    "Needs a logged reference (mocap or autopilot); a residual over 5 deg is flagged as an unreliable alignment"
+)
+BENCH_ALIGN_HELP = (
+    "per recording, before scoring, estimate a constant mounting rotation and time offset between the reference "
+    "and the FIRST filter's estimate (put the most accurate first) and remove that one alignment for every "
+    "filter, as compare --align does; printed above each recording's table (in --json: 'alignment' by "
+    "recording). A recording whose first filter does not run, or whose fit fails, is scored against the reference "
+    "as logged, and says so; a residual over 5 deg is flagged as an unreliable alignment"
 )
 
 
@@ -427,11 +444,13 @@ def _parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser(
         "info",
-        help="describe a flight file: streams, rates, duration, truth",
-        description="Print the streams of a windahrs flight file with their rates, "
-        "missing samples and gaps, the duration, and whether truth or a reference is present.",
+        help="describe a flight file or log: streams, rates, duration, truth or reference",
+        description="Read a windahrs flight file or any log or dataset the readers know (.ulg, .bin/.log, "
+        "BROAD .hdf5, an ALFA, generic-CSV or ANSFL directory) and print its format, its streams with their "
+        "rates, missing samples and gaps, the duration, whether truth or a reference is present (and which "
+        "kind), the site and the reader's notes (meta).",
     )
-    i.add_argument("file", type=Path, metavar="FILE.h5")
+    i.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
     i.set_defaults(func=_cmd_info)
 
     e = sub.add_parser(
@@ -528,14 +547,20 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser(
         "bench-data",
-        help="every estimator over every BROAD-style trial: total, inclination, heading RMSE",
-        description="Run estimators over every recording in DIR (BROAD *.hdf5 trials, or any file the "
-        "readers know) and score them as BROAD does: heading offset removed for heading-free references, "
-        "total, inclination and heading RMSE per trial, and the median over trials.",
+        help="every estimator over every recording in a folder: total, inclination (tilt), heading RMSE",
+        description="Run estimators over every recording the readers know under DIR, walked recursively (BROAD "
+        ".hdf5 trials, windahrs .h5 flights, .ulg, .bin/.log, ALFA, generic-CSV and ANSFL directories; a "
+        "directory that is a recording is not descended into) and score each against its truth or reference "
+        "with BROAD's metric: total, inclination (tilt) and heading RMSE per recording, a constant heading offset "
+        "removed where the reference's heading datum is not the estimators' (mocap; ANSFL, which has no "
+        "magnetometer), and the median over recordings. A file that cannot be read is listed as skipped with the "
+        "reason; a filter that cannot run on a recording (e.g. ins-wind without GNSS) fails only that row.",
     )
-    b.add_argument("dir", type=Path, metavar="DIR", help="a directory of trials (or one recording)")
+    b.add_argument("dir", type=Path, metavar="DIR", help="a folder of recordings (or one recording)")
     b.add_argument("--filters", default="auto,mekf,ekf7,vqf,vqf-offline,madgwick,mahony,imufusion",
-                   metavar="A,B,...", help="estimator specs (estimators that cannot run on a trial fail it)")
+                   metavar="A,B,...", help="estimator specs (a filter that cannot run on a recording fails that "
+                   "row only)")
+    b.add_argument("--align", action="store_true", help=BENCH_ALIGN_HELP)
     b.add_argument("--json", action="store_true", help="print the JSON result instead of the table")
     b.add_argument("--out", type=Path, default=None, metavar="FILE", help="also write .json or a text table")
     b.set_defaults(func=_cmd_bench_data)

@@ -510,7 +510,8 @@ class Flight:
         lines.append(f"truth      {'yes' if self.truth is not None else 'no'}")
         if self.reference is not None:
             ref = self.reference
-            lines.append(f"reference  {ref.kind}, {_rate_text(ref.t)}")
+            free = ", heading-free (scored after removing a constant heading offset)" if ref.heading_free else ""
+            lines.append(f"reference  {ref.kind}, {_rate_text(ref.t)}{free}")
         if self.site.mag_n is not None:
             m = self.site.mag_n * 1e6
             field_text = f"[{m[0]:.2f}, {m[1]:.2f}, {m[2]:.2f}] uT"

@@ -32,14 +32,22 @@ field is unknown), hence the offset, as in the VQF paper's evaluation.
 
 Samples are scored where the reference is finite and inside its mask (BROAD: the
 ``movement`` phases), as :func:`windahrs.metrics.reference_of` defines.
+
+Any recording the readers know is scored the same way, against its truth (simulation) or
+reference (mocap, an autopilot's estimate): :func:`discover_flights` walks a folder for them,
+:func:`bench_data` reads and runs them one at a time, listing what it cannot read as skipped
+and a filter that cannot run on a flight as that row's failure, and with ``align`` fits one
+mount rotation and clock offset per flight on the first filter
+(:func:`windahrs.experiments.compare.align_reference`, as ``compare --align``).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,20 +56,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
+from windahrs.experiments.compare import AlignmentOutcome, align_reference, nothing_to_align, run_estimators
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
 from windahrs.metrics import _interp_ref, reference_of
 from windahrs.rotation import quat_conj, quat_exp, quat_mul
 
 __all__ = [
+    "FLIGHT_SUFFIXES",
     "METRICS",
     "BenchResult",
     "BroadErrors",
+    "Discovery",
+    "Skipped",
     "TrialScore",
     "bench_data",
     "broad_errors",
+    "discover_flights",
     "discover_trials",
     "split_error",
+    "trial_names",
 ]
 
 F64 = NDArray[np.float64]
@@ -124,7 +138,8 @@ def broad_errors(est: Estimate, flight: Flight, *, remove_heading: bool | None =
 @dataclass(frozen=True)
 class TrialScore:
     """One filter on one trial: RMSE in degrees over the scored samples, the number of
-    scored samples, and the run time of the estimator in s."""
+    scored samples, and the run time of the estimator in s. ``error``: why the filter did
+    not run or could not be scored on this trial (the figures are then NaN)."""
 
     trial: str
     filter: str
@@ -133,9 +148,18 @@ class TrialScore:
     heading_deg: float
     samples: int
     seconds: float
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        """The filter ran and was scored."""
+        return self.error is None
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON row: trial, filter and the three RMSE figures."""
+        """The JSON row: trial, filter and the three RMSE figures; or trial, filter and
+        ``error`` for a filter that failed on the trial."""
+        if self.error is not None:
+            return {"trial": self.trial, "filter": self.filter, "error": self.error}
         return {
             "trial": self.trial,
             "filter": self.filter,
@@ -146,47 +170,118 @@ class TrialScore:
 
 
 @dataclass(frozen=True)
+class Skipped:
+    """A file or directory that was not benchmarked: ``path`` and the ``reason``."""
+
+    path: str
+    reason: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {"path": self.path, "reason": self.reason}
+
+
+@dataclass(frozen=True)
 class BenchResult:
     """Scores of every filter on every trial, in the order given (trials outer); trial_names
-    (file stems) and filters (specs) in that order."""
+    and filters (specs) in that order. skipped: recordings that could not be read or scored.
+    alignments: with ``align``, what became of each trial's alignment, by trial name (None
+    without ``align``)."""
 
     scores: tuple[TrialScore, ...]
     trial_names: tuple[str, ...]
     filters: tuple[str, ...]
+    skipped: tuple[Skipped, ...] = ()
+    alignments: Mapping[str, AlignmentOutcome] | None = None
+
+    def scored(self, filter_spec: str) -> list[TrialScore]:
+        """The rows of ``filter_spec`` that ran and were scored."""
+        return [s for s in self.scores if s.filter == filter_spec and s.ok]
 
     def median(self) -> dict[str, dict[str, float]]:
-        """Per filter, the median over trials of each RMSE figure (deg)."""
+        """Per filter, the median over the trials it ran on of each RMSE figure (deg; NaN
+        when it ran on none)."""
         out: dict[str, dict[str, float]] = {}
         for f in self.filters:
-            rows = [s for s in self.scores if s.filter == f]
-            out[f] = {m: float(np.median([getattr(s, m) for s in rows])) for m in METRICS}
+            rows = self.scored(f)
+            out[f] = {m: float(np.median([getattr(s, m) for s in rows])) if rows else math.nan for m in METRICS}
         return out
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready dict: ``{"trials": [{"trial", "filter", "total_deg",
-        "inclination_deg", "heading_deg"}, ...], "median": {FILTER: {"total_deg",
-        "inclination_deg", "heading_deg"}}}`` (serialise with ``json.dumps``)."""
-        return {"trials": [s.as_dict() for s in self.scores], "median": self.median()}
+        "inclination_deg", "heading_deg"} or {"trial", "filter", "error"}, ...], "median":
+        {FILTER: {"total_deg", "inclination_deg", "heading_deg"}}}`` (a median is None for a
+        filter that ran on no trial), with ``"skipped": [{"path", "reason"}]`` when a
+        recording was skipped and ``"alignment": {TRIAL: {...}}`` with ``align``: the fields
+        of :meth:`AlignmentOutcome.fields` (``aligned_on``, ``mount_deg``,
+        ``mount_rpy_deg``, ``mount_q``, ``time_offset_s``, ``rate_agreement``,
+        ``residual_deg``, ``samples``, ``warning``), or ``{"skipped": why}`` /
+        ``{"failed": why}``. Serialise with ``json.dumps``."""
+        median = {f: {k: _json_float(v) for k, v in m.items()} for f, m in self.median().items()}
+        out: dict[str, Any] = {"trials": [s.as_dict() for s in self.scores], "median": median}
+        if self.skipped:
+            out["skipped"] = [s.as_dict() for s in self.skipped]
+        if self.alignments is not None:
+            out["alignment"] = {name: _alignment_json(a) for name, a in self.alignments.items()}
+        return out
 
     def table(self) -> str:
-        """Text tables: one per trial (RMSE in deg, scored samples, run time), then the
-        median over trials."""
+        """Text tables: one per trial (RMSE in deg, scored samples, run time; with
+        ``align``, the alignment line first), then the median over trials and the skipped
+        recordings."""
         width = max([len("filter"), *(len(f) for f in self.filters)]) + 2
         head = f"{'filter':<{width}}{'total':>9}{'incl':>9}{'heading':>9}"
         lines: list[str] = []
         for trial in self.trial_names:
             rows = [s for s in self.scores if s.trial == trial]
-            lines += [f"{trial}: RMSE in deg", f"{head}{'samples':>9}{'s':>8}"]
+            lines.append(f"{trial}: RMSE in deg")
+            if self.alignments is not None and trial in self.alignments:
+                lines.append(_alignment_line(self.alignments[trial]))
+            lines.append(f"{head}{'samples':>9}{'s':>8}")
             for s in rows:
+                if not s.ok:
+                    lines.append(f"{s.filter:<{width}}  failed: {s.error}")
+                    continue
                 lines.append(
                     f"{s.filter:<{width}}{s.total_deg:9.3f}{s.inclination_deg:9.3f}{s.heading_deg:9.3f}"
                     f"{s.samples:9d}{s.seconds:8.2f}"
                 )
             lines.append("")
         lines += [f"median over {len(self.trial_names)} trials: RMSE in deg", head]
+        partial: list[str] = []
         for f, m in self.median().items():
-            lines.append(f"{f:<{width}}{m['total_deg']:9.3f}{m['inclination_deg']:9.3f}{m['heading_deg']:9.3f}")
+            n = len(self.scored(f))
+            if n == 0:
+                lines.append(f"{f:<{width}}{'-':>9}{'-':>9}{'-':>9}")
+            else:
+                lines.append(f"{f:<{width}}{m['total_deg']:9.3f}{m['inclination_deg']:9.3f}{m['heading_deg']:9.3f}")
+            if n < len(self.trial_names):
+                partial.append(f"{f} on {n}")
+        if partial:
+            lines.append(f"(over the trials each filter ran on: {', '.join(partial)} of {len(self.trial_names)})")
+        if self.skipped:
+            lines += ["", f"skipped {len(self.skipped)}:"]
+            lines += [f"  {s.path}: {s.reason}" for s in self.skipped]
         return "\n".join(lines)
+
+
+def _json_float(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _alignment_json(outcome: AlignmentOutcome) -> dict[str, Any]:
+    if outcome.alignment is not None:
+        return outcome.fields()
+    if outcome.skipped is not None:
+        return {"skipped": outcome.skipped}
+    return {"failed": outcome.failed}
+
+
+def _alignment_line(outcome: AlignmentOutcome) -> str:
+    if outcome.text is not None:
+        return outcome.text + (" (unreliable: residual over 5 deg)" if outcome.warning else "")
+    if outcome.skipped is not None:
+        return f"not aligned: {outcome.skipped}"
+    return f"not aligned ({outcome.failed}): scored against the reference as logged"
 
 
 def discover_trials(directory: str | os.PathLike[str]) -> list[Path]:
@@ -201,25 +296,148 @@ def discover_trials(directory: str | os.PathLike[str]) -> list[Path]:
     return found
 
 
+#: File extensions of the readers' formats: such a file that cannot be read is listed as
+#: skipped; other files are taken only when their contents are a known format.
+FLIGHT_SUFFIXES: tuple[str, ...] = (".ulg", ".bin", ".log", ".hdf5", ".h5")
+
+
+@dataclass(frozen=True)
+class Discovery:
+    """What :func:`discover_flights` found: the recordings the readers recognise, in
+    walking order, and the files with a log extension that they do not."""
+
+    flights: tuple[Path, ...]
+    skipped: tuple[Skipped, ...] = ()
+
+
+def _natural_key(p: Path) -> list[Any]:
+    """Sort key putting path_6 before path_10."""
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", p.name)]
+
+
+def discover_flights(directory: str | os.PathLike[str]) -> Discovery:
+    """Every recording the readers know under ``directory``, recursively
+    (:func:`windahrs.io.detect_format`): BROAD ``.hdf5`` trials, windahrs ``.h5`` flights,
+    ``.ulg``, ``.bin``/``.log`` DataFlash, and ALFA, generic-CSV and ANSFL directories. A
+    directory that is itself a recording is not descended into; names starting with a dot
+    are passed over; entries are walked in natural order (``path_6`` before ``path_10``).
+
+    A file with a log extension (:data:`FLIGHT_SUFFIXES`) that is no known format is
+    listed in ``skipped`` with the reason; other files are taken only when their first
+    bytes are a known format (ULog, DataFlash, HDF5 flight) and passed over otherwise.
+    ``directory`` may itself be one recording. Raises FileNotFoundError when it does not
+    exist or holds nothing recognised.
+    """
+    from windahrs.io import LogFormatError, detect_format
+
+    root = Path(directory)
+    if not root.exists():
+        raise FileNotFoundError(f"{root}: no such file or directory")
+    if root.is_file():
+        return Discovery((root,))
+    flights: list[Path] = []
+    skipped: list[Skipped] = []
+    seen: set[Path] = set()
+
+    def walk(d: Path) -> None:
+        real = d.resolve()
+        if real in seen:  # a symbolic link back up the tree
+            return
+        seen.add(real)
+        try:
+            entries = sorted(d.iterdir(), key=_natural_key)
+        except OSError as exc:
+            skipped.append(Skipped(str(d), f"cannot list the directory: {exc.strerror or exc}"))
+            return
+        for p in entries:
+            if p.name.startswith("."):
+                continue
+            if p.is_dir():
+                try:
+                    detect_format(p)
+                except LogFormatError:
+                    walk(p)
+                else:
+                    flights.append(p)
+                continue
+            try:
+                detect_format(p)
+            except LogFormatError as exc:
+                if p.suffix.lower() in FLIGHT_SUFFIXES:
+                    skipped.append(Skipped(str(p), exc.problem))
+            except OSError as exc:
+                if p.suffix.lower() in FLIGHT_SUFFIXES:
+                    skipped.append(Skipped(str(p), f"cannot read: {exc.strerror or exc}"))
+            else:
+                flights.append(p)
+
+    try:
+        detect_format(root)
+    except LogFormatError:
+        walk(root)
+    else:
+        return Discovery((root,))
+    if not flights and not skipped:
+        raise FileNotFoundError(
+            f"{root}: no recording the readers know under this directory (BROAD .hdf5, windahrs .h5, .ulg, "
+            ".bin/.log, or an ALFA, generic-CSV or ANSFL directory)"
+        )
+    return Discovery(tuple(flights), tuple(skipped))
+
+
+def trial_names(paths: Sequence[str | os.PathLike[str]]) -> list[str]:
+    """A name per recording: its file stem (directory name), or, when two stems are the
+    same (``Horizontal/path_10``, ``Vertical/path_10``), its path below the recordings'
+    common folder without the extension."""
+    ps = [Path(p) for p in paths]
+    stems = [p.name if p.is_dir() else p.stem for p in ps]
+    if len(set(stems)) == len(stems):
+        return stems
+    common = Path(os.path.commonpath([p.absolute() for p in ps]))
+    rel = [p.absolute().relative_to(common) for p in ps]
+    names = [r.as_posix() if p.is_dir() else r.with_suffix("").as_posix() for p, r in zip(ps, rel, strict=True)]
+    if len(set(names)) != len(names):
+        raise ValueError(f"paths: expected distinct recordings, found repeats in {[str(p) for p in ps]}")
+    return names
+
+
 def _rms_deg(x: F64) -> float:
     return math.degrees(float(np.sqrt(np.mean(np.square(x)))))
+
+
+def _failed(trial: str, spec: str, why: str, seconds: float = math.nan) -> TrialScore:
+    return TrialScore(trial, spec, math.nan, math.nan, math.nan, 0, seconds, error=why)
 
 
 def bench_data(
     paths: Sequence[str | os.PathLike[str]],
     specs: Sequence[str],
     *,
+    align: bool = False,
+    skipped: Sequence[Skipped] = (),
     progress: Callable[[int, int], None] | None = None,
 ) -> BenchResult:
     """Run every estimator spec (``NAME`` or ``NAME:field=value:...``, see
     :func:`~windahrs.filters.registry.make_estimator`) over every recording in ``paths``
-    (read with :func:`windahrs.io.read_flight`) and score each with :func:`broad_errors`.
+    (read with :func:`windahrs.io.read_flight`) and score each with :func:`broad_errors`
+    against the flight's truth or reference (total, inclination = tilt, heading; a constant
+    heading offset removed for heading-free references).
 
-    Every spec is built and every file read and checked against every estimator's
-    required sensors before any estimator runs, so a bad spec, file or missing sensor
-    fails at once (ValueError, LogFormatError, MissingSensorError). ``progress(done,
-    total)`` is called after each run. The trial's name is the file stem (the directory
-    name for a directory recording).
+    Every spec is built before any file is read, so a bad spec fails at once (ValueError).
+    A recording that cannot be read, or has nothing to score against, is listed in
+    ``skipped`` with the reason (``skipped`` given here, e.g. by :func:`discover_flights`,
+    is listed first). A filter that cannot run on a flight (a missing sensor, a failed
+    initialisation: a ValueError) or cannot be scored fails that trial's row only, with the
+    reason. Flights are read and run one at a time.
+
+    align: per flight, fit one mount rotation and clock offset between the reference and
+    the FIRST spec's estimate (:func:`~windahrs.experiments.compare.align_reference`, as
+    ``compare --align``) and score every filter against that aligned reference. A fit that
+    fails, or a first filter that did not run, leaves that flight's reference as logged,
+    said so in ``alignments``. A simulation's truth is never aligned.
+
+    ``progress(done, total)`` is called after each filter run (and per filter of a skipped
+    recording). Trial names are :func:`trial_names`.
     """
     from windahrs.io import read_flight
 
@@ -230,25 +448,51 @@ def bench_data(
     if len(set(specs)) != len(specs):
         raise ValueError(f"specs: expected distinct specs, found duplicates in {list(specs)}")
     estimators = [make_estimator(s) for s in specs]
-    flights: list[tuple[str, Flight]] = []
-    for p in paths:
-        path = Path(p)
-        flight = read_flight(path)
-        reference_of(flight)  # raises when there is nothing to score against
-        for est in estimators:
-            est.check(flight)
-        flights.append((path.stem, flight))
-    names = [n for n, _ in flights]
-    if len(set(names)) != len(names):
-        raise ValueError(f"paths: expected distinct trial names (file stems), found {names}")
+    names = trial_names(paths)
+    skips = list(skipped)
     scores: list[TrialScore] = []
-    done, total = 0, len(flights) * len(estimators)
-    for name, flight in flights:
+    scored_names: list[str] = []
+    alignments: dict[str, AlignmentOutcome] = {}
+    done, total = 0, len(paths) * len(estimators)
+    for name, p in zip(names, paths, strict=True):
+        try:
+            flight = read_flight(Path(p))
+            reference_of(flight)  # raises when there is nothing to score against
+        except (ValueError, OSError, ImportError) as exc:
+            skips.append(Skipped(str(p), _reason(exc, p)))
+            done += len(estimators)
+            if progress is not None:
+                progress(done, total)
+            continue
+        runs: list[tuple[str, Estimate | str, float]] = []
         for spec, est in zip(specs, estimators, strict=True):
             t0 = time.perf_counter()
-            result = est.run(flight)
+            results, failures = run_estimators(flight, [(spec, est)], keep_going=True)
             seconds = time.perf_counter() - t0
-            err = broad_errors(result, flight)
+            runs.append((spec, results[0][1] if results else failures[spec], seconds))
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        scored = flight
+        if align:
+            spec0, first, _ = runs[0]
+            if isinstance(first, Estimate):
+                outcome = align_reference(flight, (spec0, first), fallback=True)
+            elif flight.reference is None:
+                outcome = AlignmentOutcome(skipped=nothing_to_align(flight))
+            else:
+                outcome = AlignmentOutcome(failed=f"the first filter, {spec0}, did not run")
+            alignments[name] = outcome
+            scored = outcome.apply(flight)
+        for spec, result, seconds in runs:
+            if not isinstance(result, Estimate):
+                scores.append(_failed(name, spec, result))
+                continue
+            try:
+                err = broad_errors(result, scored)
+            except ValueError as exc:
+                scores.append(_failed(name, spec, f"not scored: {exc}", seconds))
+                continue
             scores.append(
                 TrialScore(
                     trial=name,
@@ -260,7 +504,19 @@ def bench_data(
                     seconds=seconds,
                 )
             )
-            done += 1
-            if progress is not None:
-                progress(done, total)
-    return BenchResult(scores=tuple(scores), trial_names=tuple(names), filters=tuple(specs))
+        scored_names.append(name)
+    return BenchResult(
+        scores=tuple(scores),
+        trial_names=tuple(scored_names),
+        filters=tuple(specs),
+        skipped=tuple(skips),
+        alignments=alignments if align else None,
+    )
+
+
+def _reason(exc: BaseException, path: str | os.PathLike[str]) -> str:
+    """Why a recording could not be benchmarked, without the path the caller shows anyway
+    (a file inside a recording's directory keeps its own name)."""
+    if isinstance(exc, ImportError):
+        return f"needs a package that is not installed: {exc}"
+    return str(exc).removeprefix(f"{os.fspath(path)}: ")

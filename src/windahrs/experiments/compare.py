@@ -21,8 +21,11 @@ The steps, each a function the CLI only prints around:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from windahrs.estimate import Estimate
 from windahrs.experiments.align import (
@@ -35,6 +38,7 @@ from windahrs.experiments.align import (
 from windahrs.filters.base import Estimator, MissingSensorError
 from windahrs.flight import Flight
 from windahrs.metrics import Score, score
+from windahrs.rotation import euler_from_quat
 
 __all__ = [
     "DEFAULT_REPORT_FILTERS",
@@ -162,6 +166,11 @@ class AlignmentError(ValueError):
         super().__init__(f"align: {reason}")
 
 
+def _json_float(x: float) -> float | None:
+    """x, or None where JSON has no number (NaN, inf)."""
+    return float(x) if math.isfinite(x) else None
+
+
 def nothing_to_align(flight: Flight) -> str:
     """Why a flight without a reference gets no alignment."""
     if flight.truth is not None:
@@ -190,15 +199,27 @@ class AlignmentOutcome:
         return describe_alignment(self.alignment, self.aligned_on)
 
     def fields(self) -> dict[str, object]:
-        """The alignment as the JSON fields of ``compare --json`` ({} without one)."""
+        """The alignment as the JSON fields of ``compare --json`` and ``bench-data --json``
+        ({} without one): ``aligned_on`` (the spec it was fitted on), ``mount_deg`` (the
+        mount's rotation angle), ``mount_rpy_deg`` (its ZYX roll, pitch, yaw), ``mount_q``
+        ([w, x, y, z], ``q_est = q_ref * q_mount``), ``time_offset_s`` (how late the
+        reference stamps are), ``rate_agreement`` (peak agreement of the body rates, 1:
+        identical), ``residual_deg`` (RMS of what the alignment leaves), ``samples`` and
+        ``warning`` (why the fit is unreliable, or None)."""
         al = self.alignment
         if al is None:
             return {}
+        rpy = np.degrees(euler_from_quat(np.asarray(al.q_mount, dtype=np.float64)))
         return {
             "aligned_on": self.aligned_on,
             "mount_deg": al.mount_angle_deg,
+            "mount_rpy_deg": [float(v) for v in rpy],
             "mount_q": [float(v) for v in al.q_mount],
             "time_offset_s": al.time_offset_s,
+            "rate_agreement": _json_float(al.correlation),
+            "residual_deg": _json_float(al.residual_deg),
+            "samples": al.samples,
+            "warning": self.warning,
         }
 
     def apply(self, flight: Flight) -> Flight:

@@ -18,6 +18,8 @@ format          recognised by
 ``alfa``        a directory holding ``mavros-imu-data_raw.csv`` (ALFA, mavros CSV export)
 ``csv``         a directory holding ``windahrs.toml`` (or that file): generic CSV,
                 ``docs/csv-format.md``
+``ansfl``       a directory holding ``GT.csv`` and at least one ``IMU_<k>.csv`` (ANSFL
+                quadrotor dataset: DJI flight log and Xsens DOT IMUs)
 ==============  ===========================================================================
 """
 
@@ -30,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from windahrs.flight import Flight
+from windahrs.io.ansfl import ANSFL_GT_FILE, is_ansfl_dir, read_ansfl
 from windahrs.io.broad import broad_movement_mask, read_broad
 from windahrs.io.csv import ALFA_IMU_FILE, CSV_MANIFEST, read_alfa, read_csv_dir
 from windahrs.io.dataflash import read_dataflash
@@ -42,6 +45,7 @@ __all__ = [
     "broad_movement_mask",
     "detect_format",
     "read_alfa",
+    "read_ansfl",
     "read_broad",
     "read_csv_dir",
     "read_dataflash",
@@ -50,7 +54,7 @@ __all__ = [
 ]
 
 #: The formats :func:`read_flight` knows, by name (the ``fmt`` argument).
-FORMATS: tuple[str, ...] = ("ulog", "dataflash", "broad", "windahrs", "alfa", "csv")
+FORMATS: tuple[str, ...] = ("ulog", "dataflash", "broad", "windahrs", "alfa", "csv", "ansfl")
 
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
 _DATAFLASH_MAGIC = b"\xa3\x95\x80"
@@ -64,7 +68,7 @@ def read_flight(path: str | os.PathLike[str], *, fmt: str | None = None, **optio
     path: a log file, an HDF5 file or a directory (see the module table). fmt: one of
     :data:`FORMATS` to skip detection. options: keyword options of the chosen reader
     (e.g. ``multi_id`` for ULog, ``instance``/``core`` for DataFlash, ``score`` for BROAD,
-    ``wind_points_from`` for ALFA).
+    ``wind_points_from`` for ALFA, ``imu``/``gnss`` for ANSFL).
 
     Raises LogFormatError for a missing path, an unknown or unreadable format (the message
     names the file and what is wrong) and FlightError for values failing validation.
@@ -82,6 +86,7 @@ def read_flight(path: str | os.PathLike[str], *, fmt: str | None = None, **optio
         "broad": read_broad,
         "alfa": read_alfa,
         "csv": read_csv_dir,
+        "ansfl": read_ansfl,
     }
     reader = readers[fmt]
     try:
@@ -102,9 +107,11 @@ def detect_format(path: str | os.PathLike[str]) -> str:
             return "csv"
         if (p / ALFA_IMU_FILE).is_file():
             return "alfa"
+        if is_ansfl_dir(p):
+            return "ansfl"
         raise LogFormatError(
-            p, f"unknown directory format: expected {CSV_MANIFEST} (generic CSV) or "
-            f"{ALFA_IMU_FILE} (ALFA mavros CSV)"
+            p, f"unknown directory format: expected {CSV_MANIFEST} (generic CSV), "
+            f"{ALFA_IMU_FILE} (ALFA mavros CSV) or {ANSFL_GT_FILE} with IMU_<k>.csv (ANSFL)"
         )
     if not p.is_file():
         raise LogFormatError(p, "no such file or directory")
@@ -125,7 +132,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         raise LogFormatError(p, "empty file")
     raise LogFormatError(
         p, f"unknown format (extension {ext or 'none'!r}; known: .ulg, .bin, .log, .hdf5, "
-        f".h5, or a directory with {CSV_MANIFEST} or {ALFA_IMU_FILE})"
+        f".h5, or a directory with {CSV_MANIFEST}, {ALFA_IMU_FILE} or {ANSFL_GT_FILE})"
     )
 
 

@@ -41,6 +41,7 @@ from windahrs.io.edge import (
     finite_rows,
     flight_errors_name,
     invalid_quat_rows,
+    velocity_from_positions,
 )
 from windahrs.rotation import (
     quat_enu_flu_to_ned_frd,
@@ -605,8 +606,8 @@ def _velocity_from_positions(t: F64, lla: F64) -> F64:
     """NED velocity (N, 3) m/s from latitude, longitude (deg) and height (m, up).
 
     Positions go to ECEF (WGS-84) and then to a local NED tangent plane at the first valid
-    fix; velocity is their time derivative by central differences (one-sided at the ends,
-    ``numpy.gradient``). NaN positions give NaN velocities beside them.
+    fix; velocity is their time derivative (:func:`~windahrs.io.edge.velocity_from_positions`:
+    central differences, one-sided at the ends). NaN positions give NaN velocities beside them.
     """
     lat, lon, h = lla[:, 0] * DEG, lla[:, 1] * DEG, lla[:, 2]
     n = _WGS84_A / np.sqrt(1.0 - _WGS84_E2 * np.sin(lat) ** 2)
@@ -626,10 +627,7 @@ def _velocity_from_positions(t: F64, lla: F64) -> F64:
         [-np.sin(lo), np.cos(lo), 0.0],
         [-np.cos(la) * np.cos(lo), -np.cos(la) * np.sin(lo), -np.sin(la)],
     ])
-    p_n = (ecef - ecef[i0]) @ c_ne.T
-    if len(t) < 2:
-        return np.full_like(p_n, np.nan)
-    return np.asarray(np.gradient(p_n, t, axis=0), dtype=np.float64)
+    return velocity_from_positions(t, (ecef - ecef[i0]) @ c_ne.T)
 
 
 def _air_cols(man: _Manifest) -> list[str]:

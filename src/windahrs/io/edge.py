@@ -44,6 +44,7 @@ __all__ = [
     "guard",
     "invalid_quat_rows",
     "param_float",
+    "velocity_from_positions",
 ]
 
 F64 = NDArray[np.float64]
@@ -139,6 +140,20 @@ def guard(path: str | os.PathLike[str], what: str, fn: Callable[[], T]) -> T:
         raise
     except Exception as exc:
         raise LogFormatError(path, f"{what}: {type(exc).__name__}: {exc}") from None
+
+
+def velocity_from_positions(t: NDArray[Any], p: NDArray[Any]) -> F64:
+    """Velocity (N, 3) from positions (N, 3) at times t (N,) s, in the positions' frame and
+    unit per second: central differences inside, one-sided at the two ends
+    (``numpy.gradient`` with the sample times). A NaN position makes the velocities beside
+    it NaN; fewer than 2 samples give NaN. Differencing amplifies position noise and
+    quantisation: a step q between samples dt apart shows as about q / (2 dt).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    if len(t) < 2:
+        return np.full_like(p, np.nan)
+    return np.asarray(np.gradient(p, t, axis=0), dtype=np.float64)
 
 
 def param_float(value: Any) -> float:
