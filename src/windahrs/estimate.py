@@ -135,8 +135,8 @@ class Estimate:
             for t, size, out_for in rows:
                 if sensor == "accel":
                     what = f"attitude levelled to it by {np.degrees(size):.1f} deg, gyro bias reset"
-                elif sensor == "gnss":
-                    what = f"velocity reset to it by {size:.2f} m/s, attitude spread reopened"
+                elif sensor == "mag":
+                    what = f"heading turned to it by {np.degrees(size):.1f} deg"
                 else:
                     what = f"state reset to it by {size:.3g}"
                 out.append(f"{self.filter}: {sensor} rejected for {out_for:.1f} s; at t = {t:.2f} s {what}")

@@ -111,13 +111,16 @@ class EskfParams:
     Default 0, the first sample: 1 s was measured worse on BROAD's heading (trials 02 and
     15: 0.66 -> 1.24 and 0.78 -> 1.17 deg, cause not yet found) and no better on the ANSFL
     flights, where a start that far off is caught by the reset below. reset_timeout s: when
-    the accelerometer's gravity measurement ([mekf], [mekf-air], [ekf7], [ekf10]) or GNSS
-    velocity ([ins-wind]) has been rejected by its gate for this long, the state is reset
-    to the measurement instead (attitude tilt and gyro bias to the specific force; velocity
-    to GNSS, with the attitude's spread reopened), logged in ``Estimate.resets`` and
-    warned about: a gate that trusts a wrong state must not lock the filter out for good
+    the accelerometer's gravity direction ([mekf], [mekf-air], [ekf7], [ekf10]) has been more
+    than 45 deg from the state's for this long, or the magnetometer's heading more than
+    45 deg from it ([mekf], [mekf-air], [ins-wind], ...), the filter has lost it: the
+    attitude is levelled to the specific force (and the gyro bias reset), or turned about
+    the vertical onto the field's heading, its spread reopened, logged in
+    ``Estimate.resets`` and warned about. A gate that trusts a wrong state must not lock the
+    filter out for good, and an EKF update cannot turn a filter that is upside down
     (default 5 s, PX4 EKF2_NOAID_TOUT, the longest EKF2 dead-reckons before it resets to
-    its aiding; 0: never).
+    its aiding; 0: never). GNSS velocity has no such reset yet: one that reset the velocity
+    and the tilt was measured worse on the ALFA flight (10 Hz IMU).
     """
 
     gyro_noise: float = 0.01 * DEG
