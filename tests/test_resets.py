@@ -1,0 +1,39 @@
+"""Resets of a filter that has lost gravity or heading (windahrs.core.reset): logged in
+Estimate.resets, warned about, and the attitude recovered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import windahrs as wa
+from windahrs.estimate import EstimatorWarning, load_estimate, save_estimate
+from windahrs.filters.base import InitialState
+from windahrs.metrics import attitude_errors
+from windahrs.rotation import quat_mul
+
+
+def _upside_down(flight: wa.Flight) -> InitialState:
+    ini = InitialState.from_truth(flight)
+    return InitialState(q_nb=quat_mul(ini.q_nb, np.array([0.0, 1.0, 0.0, 0.0])))  # roll + 180 deg
+
+
+def test_upside_down_start_is_levelled_logged_and_warned(tmp_path) -> None:
+    flight = wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0)
+    with pytest.warns(EstimatorWarning, match=r"mekf: accel rejected for 5\.\d s; at t = 5\.\d+ s attitude levelled"):
+        est = wa.estimator("mekf").run(flight, initial=_upside_down(flight))
+    rows = est.resets["accel"]
+    assert rows.shape[1] == 3 and rows[0, 1] > np.radians(150)  # the first reset undoes the flip
+    tilt = np.degrees(attitude_errors(est, flight).tilt)
+    assert tilt[np.searchsorted(est.t, 4.0)] > 150  # lost before the timeout...
+    assert tilt[est.t > 15.0].max() < 3.0  # ... and level again after it
+    path = save_estimate(est, tmp_path / "e.h5")
+    np.testing.assert_array_equal(load_estimate(path).resets["accel"], rows)
+
+
+def test_no_reset_without_timeout_and_none_on_a_good_start() -> None:
+    flight = wa.simulate("quadrotor", seed=3, wind=0.0, duration=12.0)
+    est = wa.estimator("mekf:reset_timeout=0").run(flight, initial=_upside_down(flight))
+    assert est.resets == {}
+    assert np.degrees(attitude_errors(est, flight).tilt[-1]) > 150  # the gate's lock-out, kept
+    assert wa.estimator("mekf").run(flight).resets == {}
