@@ -215,11 +215,12 @@ def _try_init(cfg, prm, x, flags, P, work):
         return
     if cfg[C_WAIT_GNSS] == 1 and flags[S_FV] == 0:
         return
+    f0 = X_FWIN if prm[R_INI_WIN] > 0 else X_FLAST  # the window's mean, or the last sample
     if cfg[C_INI] == 1:
         q = (prm[R_INI_Q], prm[R_INI_Q + 1], prm[R_INI_Q + 2], prm[R_INI_Q + 3])
     else:
         q = _triad(
-            x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2],
+            x[f0], x[f0 + 1], x[f0 + 2],
             flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
             cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
         )  # fmt: skip
@@ -254,7 +255,7 @@ def _try_init(cfg, prm, x, flags, P, work):
         _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
     if prm[R_ACC_LP] > 0:
         for a in range(3):
-            x[X_FBAR + a] = x[X_FWIN + a]
+            x[X_FBAR + a] = x[f0 + a]
         flags[S_FBAR] = 1
     flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
@@ -326,9 +327,11 @@ def imu_clock(cfg, prm, x, flags, P, work, t, row):
 @njit(inline="always", **_JIT)
 def mag_ready(cfg, prm, x, flags, P, work, row):
     """Every filter's first step at a magnetometer sample row[:3] T: before initialisation
-    keep the latest sample for the initial heading; returns whether initialised."""
+    keep the first sample (with an init_window, the latest) for the initial heading; returns
+    whether initialised."""
     if flags[S_INIT] == 0:
-        x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
+        if flags[S_FMAG] == 0 or prm[R_INI_WIN] > 0:
+            x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
         flags[S_FMAG] = 1
         _try_init(cfg, prm, x, flags, P, work)
         return False
@@ -415,12 +418,15 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     iv, iw = cfg[C_IV], cfg[C_IW]
     if flags[S_INIT] == 0:
         q = (1.0, 0.0, 0.0, 0.0)
-        if flags[S_WIN] == 1:  # the window's mean so far, and the latest field
+        if flags[S_WIN] == 1 and prm[R_INI_WIN] > 0:  # the window's mean so far, and the latest field
             q = _triad(
                 x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2],
                 flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
                 cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
             )  # fmt: skip
+        elif flags[S_FLAST] == 1:  # the last sample's tilt
+            no = np.bool_(False)
+            q = _triad(x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2], no, 0.0, 0.0, 0.0, no, 0.0, 0.0, 0.0)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q
         for a in range(3):
             out_bg[k, a] = 0.0
