@@ -27,6 +27,7 @@ from windahrs.core.kalman import (
 )
 from windahrs.core.layout import (
     _JIT,
+    C_AVAR,
     C_COMP,
     C_IBA,
     COMP_AIRSPEED,
@@ -42,9 +43,11 @@ from windahrs.core.layout import (
     S_VAIR,
     W_NU,
     X_AGNSS,
+    X_AVAR,
     X_BA,
     X_BG,
     X_FBAR,
+    X_FPREV,
     X_Q,
     X_VAIR,
 )
@@ -68,7 +71,15 @@ from windahrs.core.reset import (
 LOST_COS = math.cos(math.radians(45.0))
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
-PARAMS = ("accel_sigma", "accel_norm_gate", "accel_compensation", "accel_lowpass", "gate_accel", "reset_timeout")
+PARAMS = (
+    "accel_sigma",
+    "accel_noise_online",
+    "accel_norm_gate",
+    "accel_compensation",
+    "accel_lowpass",
+    "gate_accel",
+    "reset_timeout",
+)
 
 
 @njit(inline="always", **_JIT)
@@ -78,6 +89,15 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gravity, ``h = C_bn (-g_n) (+ compensation) (+ b_a)``, ``H_att = [h_g]x``, R = accel_sigma^2 I,
     gated on ``| |f| - g | > accel_norm_gate g`` and on the innovation (gate_accel)."""
     fx, fy, fz = row[3], row[4], row[5]
+    if cfg[C_AVAR] == 1:
+        # the accelerometer's noise on line, from the differences of consecutive samples:
+        # (f_k - f_k-1) / sqrt(2) has the variance of the sample-to-sample noise (vibration,
+        # aliased rotor harmonics), while the smooth motion of the vehicle barely enters it
+        # at IMU rates
+        if dt > 0:
+            d0, d1, d2 = fx - x[X_FPREV], fy - x[X_FPREV + 1], fz - x[X_FPREV + 2]
+            x[X_AVAR] += _lowpass_gain(dt, prm[R_ACC_LP]) * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
+        x[X_FPREV], x[X_FPREV + 1], x[X_FPREV + 2] = fx, fy, fz
     # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
     g = prm[R_GRAV]
@@ -126,7 +146,8 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     h0, h1, h2 = y0, y1, y2
     if has_k:
         h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
-    _vector_rows(work, sup[0], y0, y1, y2, prm[R_ACC_VAR])
+    var = prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] == 1 else prm[R_ACC_VAR]
+    _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
     iba = cfg[C_IBA]
     if iba >= 0:  # (no accelerometer fusion in the INS; kept for the general model)

@@ -84,7 +84,8 @@ C_N = 18  # covariance dimension (additive: DIM + 1)
 C_IBM = 19  # ... magnetometer bias (-1: none)
 C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
 C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
-C_OFF = 22  # (N_SENSORS,) first row of each sensor's log
+C_AVAR = 22  # 1: add the on-line variance X_AVAR to the gravity measurement's noise
+C_OFF = 23  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
@@ -157,8 +158,10 @@ X_TMBAR = 49  # time of the last magnetometer sample in it
 X_FWIN = 50  # (3,) mean specific force of the initialisation window, current body frame
 X_NWIN = 53  # samples in it
 X_TWIN0 = 54  # time of its first sample
-X_TOK = 55  # (N_SENSORS,) time each aid source was last accepted (NaN: not yet initialised)
-N_X = X_TOK + N_SENSORS
+X_TOK = 55  # (N_SENSORS,) time each aid source last agreed with the state (NaN: not yet initialised)
+X_AVAR = X_TOK + N_SENSORS  # the accelerometer's on-line noise variance, (m/s^2)^2 per axis
+X_FPREV = X_AVAR + 1  # (3,) the previous specific force sample, for it
+N_X = X_FPREV + 3
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

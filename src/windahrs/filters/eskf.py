@@ -42,10 +42,11 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS)
 
 #: [mekf]'s defaults for a 9-D AHRS in the field (handheld, robots, vehicles; BROAD-type
 #: motion): gravity and field as means in an almost inertial frame (3 s, 9 s, VQF's time
-#: constants), rate-proportional gyro noise, heading-only magnetometer about the vertical
+#: constants), the accelerometer's noise (vibration) estimated on line, rate-proportional gyro noise, heading-only magnetometer about the vertical
 #: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg).
 MEKF_FIELD = EskfParams(
     accel_lowpass=3.0,
+    accel_noise_online=True,
     gyro_scale_noise=1e-3,
     mag_3d_needs_site=True,
     heading_model="vertical",

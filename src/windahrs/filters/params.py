@@ -61,6 +61,14 @@ class EskfParams:
     body frame by the gyro increment), and that mean is the measurement, gated and fused
     at every IMU sample: linear accelerations of bounded velocity average out there while
     gravity does not (VQF's tau_acc; [mekf] default 3 s, 0: raw samples).
+    accel_noise_online (with accel_lowpass): add to accel_sigma^2 the accelerometer's noise
+    variance estimated on line from the differences of consecutive samples, ``|f_k -
+    f_k-1|^2 / 6`` per axis averaged over accel_lowpass: rotor vibration (several m/s^2 on a
+    hard-mounted IMU, aliased into low frequencies the mean keeps) then weighs the mean
+    down, while the smooth motion of a handheld or flying vehicle barely enters it ([mekf]
+    default; measured: ANSFL quadrotor tilt 8.1 -> 6.2 deg on the even flights that chose
+    it, 9.8 -> 6.8 on the odd ones; BROAD 02/07/10 inclination 0.462 -> 0.463, 15/24/30/32
+    0.580 -> 0.621 deg; docs/RESULTS.md).
     gyro_scale_noise 1/sqrt(Hz): attitude process noise proportional to the rate,
     ``(gyro_scale_noise |w|)^2`` added to gyro_noise^2 (scale-factor and axis-misalignment
     errors; 1e-3: about 0.1 % of the angle turned per second of rotation; error-state
@@ -167,6 +175,7 @@ class EskfParams:
     gate_drag: float = 5.0
     air_density: float = 1.225
     init_window: float = 0.0
+    accel_noise_online: bool = False
     reset_timeout: float = 5.0
 
     def __post_init__(self) -> None:
