@@ -42,7 +42,8 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS)
 
 #: [mekf]'s defaults for a 9-D AHRS in the field (handheld, robots, vehicles; BROAD-type
 #: motion): gravity and field as means in an almost inertial frame (3 s, 9 s, VQF's time
-#: constants), the accelerometer's noise (vibration) estimated on line, rate-proportional gyro noise, heading-only magnetometer about the vertical
+#: constants), the accelerometer's noise (vibration) estimated on line,
+#: rate-proportional gyro noise, heading-only magnetometer about the vertical
 #: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg).
 MEKF_FIELD = EskfParams(
     accel_lowpass=3.0,
