@@ -3,12 +3,16 @@ Estimate.resets, warned about, and the attitude recovered."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import windahrs as wa
+from conftest import require_data
 from windahrs.estimate import EstimatorWarning, load_estimate, save_estimate
 from windahrs.filters.base import InitialState
+from windahrs.filters.checks import tilt_alerts
 from windahrs.metrics import attitude_errors
 from windahrs.rotation import quat_mul
 
@@ -37,3 +41,29 @@ def test_no_reset_without_timeout_and_none_on_a_good_start() -> None:
     assert est.resets == {}
     assert np.degrees(attitude_errors(est, flight).tilt[-1]) > 150  # the gate's lock-out, kept
     assert wa.estimator("mekf").run(flight).resets == {}
+
+
+def test_tilt_check_flags_a_wrong_attitude_and_passes_a_right_one() -> None:
+    flight = wa.simulate("quadrotor", seed=4, wind=5.0, duration=60.0)
+    est = wa.estimator("mekf").run(flight)
+    assert tilt_alerts(est, flight).shape == (0, 3)
+    # the same estimate tilted by 20 deg about body x from 30 s to 45 s
+    tilted = est.q_nb.copy()
+    span = (est.t >= 30.0) & (est.t < 45.0)
+    half = np.radians(20.0) / 2
+    tilted[span] = quat_mul(tilted[span], np.array([np.cos(half), np.sin(half), 0.0, 0.0]))
+    rows = tilt_alerts(dataclasses.replace(est, q_nb=tilted), flight)
+    assert rows.shape == (1, 3)
+    t0, t1, deg = rows[0]
+    assert 30.0 < t0 < 38.0 and 44.0 < t1 < 52.0  # the mean's lag, tau = 10 s
+    assert 10.0 < deg < 21.0
+
+
+def test_a_real_flight_that_diverges_is_flagged_and_warned() -> None:
+    """ANSFL Horizontal/path_20 (Xsens DOT on a DJI quadrotor, rotor vibration): [mekf]
+    ends about 20 deg off DJI's tilt; it must say so."""
+    flight = wa.read(require_data("ansfl", "Horizontal", "path_20"))
+    with pytest.warns(EstimatorWarning, match=r"mekf: tilt disagrees with the mean specific force by up to \d+ deg"):
+        est = wa.estimator("mekf").run(flight)
+    assert len(est.alerts["tilt"]) >= 1
+    assert est.alerts["tilt"][-1, 1] > est.t[-1] - 5.0  # up to the end of the flight

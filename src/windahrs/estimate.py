@@ -80,7 +80,10 @@ class Estimate:
     parameters used; meta: free-form. resets: per sensor (its innovation key), the resets
     of the state to it after its gate had kept it out for the filter's ``reset_timeout``,
     (K, 3) rows of [t s, size (rad for an attitude reset, m/s for a velocity reset), how
-    long the sensor had been kept out s]; :meth:`warnings` says them in words.
+    long the sensor had been kept out s]; :meth:`warnings` says them in words. alerts: what
+    the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
+    [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
+    the mean specific force (lost gravity).
     """
 
     filter: str
@@ -96,6 +99,7 @@ class Estimate:
     params: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
     resets: dict[str, F64] = field(default_factory=dict)
+    alerts: dict[str, F64] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -140,6 +144,9 @@ class Estimate:
                 else:
                     what = f"state reset to it by {size:.3g}"
                 out.append(f"{self.filter}: {sensor} rejected for {out_for:.1f} s; at t = {t:.2f} s {what}")
+        for t0, t1, deg in self.alerts.get("tilt", ()):
+            out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "
+                       f"from t = {t0:.1f} to {t1:.1f} s (lost gravity?)")
         for sensor, inn in self.innovations.items():
             n = len(inn.accepted)
             share = float(np.mean(inn.accepted)) if n else 1.0
@@ -168,9 +175,10 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
         meta = f.create_group("meta")
         for k, v in est.meta.items():
             meta.attrs[k] = v
-        rs = f.create_group("resets")
-        for k, v in est.resets.items():
-            rs.create_dataset(k, data=v)
+        for name in ("resets", "alerts"):
+            grp = f.create_group(name)
+            for k, v in getattr(est, name).items():
+                grp.create_dataset(k, data=v)
     return Path(path)
 
 
@@ -190,6 +198,10 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             innovations=inns,
             skipped={k: int(v) for k, v in f["skipped"].attrs.items()},
             meta=dict(f["meta"].attrs.items()),
-            resets={k: np.asarray(d[()], dtype=np.float64) for k, d in f["resets"].items()} if "resets" in f else {},
+            **{
+                name: {k: np.asarray(d[()], dtype=np.float64) for k, d in f[name].items()}
+                for name in ("resets", "alerts")
+                if name in f
+            },
             **arrays,
         )

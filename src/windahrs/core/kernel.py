@@ -12,7 +12,6 @@ Nothing is allocated inside the loop.
 
 from __future__ import annotations
 
-import warnings
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -185,7 +184,7 @@ from windahrs.core.quat import (
     _xi_into,
 )
 from windahrs.core.reset import set_attitude_cov
-from windahrs.estimate import Estimate, EstimatorWarning, Innovations
+from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     EVENT_AIR,
     EVENT_GNSS,
@@ -197,6 +196,7 @@ from windahrs.filters.base import (
     StateView,
     merge_events,
 )
+from windahrs.filters.checks import checked
 from windahrs.filters.params import EskfParams
 from windahrs.flight import Flight, Site
 from windahrs.models.error_state import Layout
@@ -728,14 +728,6 @@ def _resets(st: KernelState) -> dict[str, F64]:
     return out
 
 
-def warn_about(est: Estimate) -> Estimate:
-    """Emit each of ``est.warnings()`` as an :class:`~windahrs.estimate.EstimatorWarning`;
-    returns est."""
-    for line in est.warnings():
-        warnings.warn(line, EstimatorWarning, stacklevel=3)
-    return est
-
-
 def _grow(st: KernelState) -> KernelState:
     """The same state with twice the log capacity for every full sensor log."""
     cnt = st.flags[L_CNT : L_CNT + N_SENSORS]
@@ -842,7 +834,7 @@ class CompiledEstimator(Estimator):
         cov = np.empty((N, d, d))
         run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
         skipped = st.flags[K_SKIP : K_SKIP + 4]
-        return warn_about(Estimate(
+        return checked(Estimate(
             filter=self.label,
             t=flight.imu.t.copy(),
             q_nb=q,
@@ -855,7 +847,7 @@ class CompiledEstimator(Estimator):
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
             resets=_resets(st),
-        ))
+        ), flight)
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()

@@ -56,6 +56,7 @@ from windahrs.filters.base import (
     StateView,
     merge_events,
 )
+from windahrs.filters.checks import checked
 from windahrs.filters.params import read_param_file
 from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
@@ -729,7 +730,7 @@ class AdditiveEstimator(Estimator):
         bg = np.empty((N, 3)) if c.n == 7 else np.empty((0, 3))
         run_events(st, t_ev, kinds, vals, q, bg, cov, True)
         skipped = st.flags[K_SKIP : K_SKIP + 4]
-        return Estimate(
+        return checked(Estimate(
             filter=self.label,
             t=flight.imu.t.copy(),
             q_nb=q,
@@ -742,7 +743,7 @@ class AdditiveEstimator(Estimator):
             skipped={s: int(v) for s, v in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
             meta=self._meta(st),
-        )
+        ), flight)
 
     def _meta(self, st: KernelState) -> dict[str, Any]:
         return {}

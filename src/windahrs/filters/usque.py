@@ -94,6 +94,7 @@ from windahrs.core.quat import (
 )
 from windahrs.estimate import Estimate
 from windahrs.filters.base import EVENT_IMU, EVENT_MAG, Estimator, InitialState, merge_events
+from windahrs.filters.checks import checked
 from windahrs.filters.params import EskfParams
 from windahrs.flight import Flight, Site
 from windahrs.rotation import quat_normalize
@@ -520,7 +521,7 @@ class Usque(Estimator):
         q, bg, cov = np.empty((N, 4)), np.empty((N, 3)), np.empty((N, _N, _N))
         run_usque(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, np.empty((0, 3)), cov, True)
         skipped = st.flags[K_SKIP : K_SKIP + 4]
-        return Estimate(
+        return checked(Estimate(
             filter=self.label,
             t=flight.imu.t.copy(),
             q_nb=q,
@@ -532,7 +533,7 @@ class Usque(Estimator):
             innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
-        )
+        ), flight)
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()

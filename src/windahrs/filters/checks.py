@@ -1,0 +1,110 @@
+"""Checks of an estimate against its own flight, for every windahrs estimator: no filter
+may lose the attitude silently.
+
+:func:`tilt_alerts` asks whether the estimated attitude still knows where down is. Rotated
+into the navigation frame by the estimate, the specific force must average to ``-g_n`` plus
+the vehicle's acceleration, which itself averages out over a long enough time (a vehicle's
+velocity is bounded) or is measured (GNSS velocity differences). The mean over
+``TILT_TAU_S`` of ``C_nb f_b - a_n`` is therefore ``-g_n`` for a right attitude; a tilt
+error theta moves it by ``2 g sin(theta / 2)``, read back as an angle. A disagreement beyond
+``TILT_LIMIT_DEG`` held for ``TILT_HOLD_S`` is an alert: the estimator has lost gravity
+(upside-down start, a lock-out by its gate, divergence), whatever it believes of itself.
+
+:func:`checked` adds the alerts to an Estimate and emits each of ``Estimate.warnings()`` as an
+:class:`~windahrs.estimate.EstimatorWarning`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from windahrs.estimate import Estimate, EstimatorWarning
+from windahrs.flight import Flight
+from windahrs.rotation import quat_rotate
+
+__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts"]
+
+F64 = NDArray[np.float64]
+
+#: Time constant of the mean, s: long against a multirotor's or a handheld sensor's
+#: back-and-forth accelerations and a third of a fixed wing's 30 s turn, short against a
+#: flight (without GNSS, a turn held longer than this reads as a tilt: GNSS removes it).
+TILT_TAU_S = 10.0
+#: An alert when the mean specific force is further than this from the vertical, deg (the
+#: error a user would call lost; issue 12's "more than 10 deg in tilt from the reference").
+TILT_LIMIT_DEG = 10.0
+#: ... for at least this long, s.
+TILT_HOLD_S = 3.0
+
+
+def _fill(a: F64) -> F64:
+    """Rows with NaN take the last finite row (the first finite row before any)."""
+    ok = np.isfinite(a).all(axis=1)
+    if not ok.any():
+        return np.zeros_like(a)
+    idx = np.where(ok, np.arange(len(a)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    idx[: np.argmax(ok)] = np.argmax(ok)
+    return a[idx]
+
+
+def tilt_alerts(
+    est: Estimate,
+    flight: Flight,
+    *,
+    tau: float = TILT_TAU_S,
+    limit_deg: float = TILT_LIMIT_DEG,
+    hold_s: float = TILT_HOLD_S,
+) -> F64:
+    """The spans where the estimate's tilt disagrees with the mean specific force (see the
+    module): (K, 3) rows [t_start s, t_end s, largest disagreement deg]. The mean is a running
+    mean for the first tau seconds, which are not checked. est.t must be the flight's IMU
+    times."""
+    t, imu = est.t, flight.imu
+    if len(t) != len(imu.t) or len(t) < 2:
+        return np.empty((0, 3))
+    dt = float(np.median(np.diff(t)))
+    f_n = quat_rotate(_fill(est.q_nb), _fill(imu.f_b))  # a_n - g_n for a right attitude
+    g = flight.gnss
+    if g is not None and len(g.t) >= 3:
+        ok = np.isfinite(g.v_n).all(axis=1)
+        if ok.sum() >= 3:
+            a_n = np.gradient(g.v_n[ok], g.t[ok], axis=0)
+            for k in range(3):  # the measured acceleration, removed
+                f_n[:, k] -= np.interp(t, g.t[ok], a_n[:, k])
+    # the running mean until it spans tau (VQF's start), then a first-order low-pass from it
+    n0 = max(1, int(np.searchsorted(t, t[0] + tau)))
+    head = np.cumsum(f_n[:n0], axis=0) / np.arange(1, n0 + 1)[:, None]
+    a = math.exp(-dt / tau)
+    tail = lfilter([1.0 - a], [1.0, -a], f_n[n0:], axis=0, zi=(a * head[-1])[None, :])[0]
+    mean = np.concatenate([head, tail])
+    # |mean + g_n| = 2 g sin(theta / 2) for a tilt error theta; it also catches an attitude
+    # that follows every sample's specific force (its mean then stays vertical, but longer
+    # than g: the accelerations rectified)
+    mean[:, 2] += flight.site.gravity
+    off = np.linalg.norm(mean, axis=1) / (2.0 * flight.site.gravity)
+    angle = np.degrees(2.0 * np.arcsin(np.clip(off, 0.0, 1.0)))
+    over = (angle > limit_deg) & (t >= t[0] + tau)
+    rows = []
+    edges = np.flatnonzero(np.diff(np.r_[0, over.astype(np.int8), 0]))
+    for i0, i1 in zip(edges[::2], edges[1::2], strict=True):
+        if t[i1 - 1] - t[i0] >= hold_s:
+            rows.append((t[i0], t[i1 - 1], float(angle[i0:i1].max())))
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def checked(est: Estimate, flight: Flight) -> Estimate:
+    """``est`` with its tilt alerts (``alerts["tilt"]``), each of its warnings emitted as an
+    EstimatorWarning."""
+    rows = tilt_alerts(est, flight)
+    if len(rows):
+        est = dataclasses.replace(est, alerts={**est.alerts, "tilt": rows})
+    for line in est.warnings():
+        warnings.warn(line, EstimatorWarning, stacklevel=3)
+    return est
