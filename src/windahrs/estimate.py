@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 from numpy.typing import NDArray
 
@@ -198,10 +199,12 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             innovations=inns,
             skipped={k: int(v) for k, v in f["skipped"].attrs.items()},
             meta=dict(f["meta"].attrs.items()),
-            **{
-                name: {k: np.asarray(d[()], dtype=np.float64) for k, d in f[name].items()}
-                for name in ("resets", "alerts")
-                if name in f
-            },
+            resets=_float_group(f, "resets"),
+            alerts=_float_group(f, "alerts"),
             **arrays,
         )
+
+
+def _float_group(f: h5py.File, name: str) -> dict[str, F64]:
+    """The datasets of group ``name`` as float arrays by name (none when absent: older files)."""
+    return {k: np.asarray(d[()], dtype=np.float64) for k, d in f[name].items()} if name in f else {}
