@@ -147,12 +147,15 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         set_attitude_cov(cfg, prm, x, P, work)
         reset_gyro_bias(cfg, prm, x, P)
         log_reset(cfg, flags, inn, acc, work, x, sensor, t, angle)
-        # a heading held while the tilt was lost is no better: the next field sample that
-        # disagrees by more than 45 deg resets it at once, and a reference field taken from
-        # a sample under the lost tilt is taken again
-        x[X_TOK + INN_MAG] = min(x[X_TOK + INN_MAG], t - prm[R_RESET_TOUT] - 1e-6)
-        if cfg[C_SITE_MAG] == 0:
-            flags[S_MAGN] = 0
+        if flags[S_FBAR] == 1:
+            # levelled to a mean (not to one raw sample, which a vibrating or accelerating
+            # vehicle can hold far from gravity), the tilt is trusted: a heading held while
+            # it was lost is no better, so the next field sample that disagrees by more than
+            # 45 deg resets it at once, and a reference field taken under the lost tilt is
+            # taken again
+            x[X_TOK + INN_MAG] = min(x[X_TOK + INN_MAG], t - prm[R_RESET_TOUT] - 1e-6)
+            if cfg[C_SITE_MAG] == 0:
+                flags[S_MAGN] = 0
         return
     h0, h1, h2 = y0, y1, y2
     if has_k:
