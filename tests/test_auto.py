@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import windahrs as wa
+from conftest import require_data
 from windahrs.cli import main
 from windahrs.estimate import Estimate, load_estimate
 from windahrs.filters.auto import describe_choice, usable_streams
@@ -174,3 +176,18 @@ def test_cli_compare_defaults_start_with_auto(
     auto_row, mekf_row = std.out.splitlines()[2:4]
     assert auto_row.split()[1:] == mekf_row.split()[1:]  # the same numbers
 
+
+
+def test_auto_falls_back_to_mekf_when_the_ins_fails_its_tilt_check() -> None:
+    """ANSFL path_10: GNSS velocity differentiated from RTK positions on another clock, on
+    which the INS loses its attitude; auto keeps the run without GNSS and says why."""
+    flight = wa.read(require_data("ansfl", "Horizontal", "path_10"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = wa.estimator("auto").run(flight)
+        ins = wa.estimator("ins-wind").run(flight)
+        mekf = wa.estimator("mekf").run(flight)
+    assert len(ins.alerts["tilt"]) >= 1
+    assert est.meta["auto"] == "mekf" and "tilt disagreed" in est.meta["auto_fallback"]
+    np.testing.assert_array_equal(est.q_nb, mekf.q_nb)
+    assert "fell back from the INS" in (describe_choice(est) or "")

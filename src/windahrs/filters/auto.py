@@ -56,6 +56,7 @@ Streaming: ``auto.stream(site, has=...)`` chooses from ``has``, the streams you 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -192,10 +193,29 @@ class Auto(Estimator):
 
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
         """Choose from the flight's streams (:func:`usable_streams`) and run the choice;
-        ``filter`` is auto's label and ``meta`` says what ran (:meth:`AutoChoice.meta`)."""
+        ``filter`` is auto's label and ``meta`` says what ran (:meth:`AutoChoice.meta`).
+
+        Fallback: when the INS fails the tilt check of :mod:`windahrs.filters.checks` (its
+        attitude does not see the mean specific force, less the GNSS acceleration, as
+        gravity), the flight is run again without GNSS ([mekf]) and the run that failed the
+        check for less time is kept, as ArduPilot's EKF3 switches to the lane with the
+        smaller error score; ``meta["auto_fallback"]`` says why. Only the kept run's
+        warnings are emitted."""
         self.check(flight)
-        choice = self.choose(usable_streams(flight))
-        est = choice.estimator.run(flight, initial=initial)
+        streams = usable_streams(flight)
+        choice = self.choose(streams)
+        est, caught = _run_quietly(choice.estimator, flight, initial)
+        if "gnss" in choice.sensors and _alert_seconds(est) > 0:
+            other = self.choose(streams - {"gnss"})
+            est2, caught2 = _run_quietly(other.estimator, flight, initial)
+            if _alert_seconds(est2) < _alert_seconds(est):
+                why = (f"{choice.spec}'s tilt disagreed with the mean specific force for "
+                       f"{_alert_seconds(est):.1f} s, {other.spec}'s for {_alert_seconds(est2):.1f} s")
+                choice, est, caught = other, est2, caught2
+                est = dataclasses.replace(est, meta={**est.meta, "auto_fallback": why})
+        for w in caught:
+            text = str(w.message).replace(est.filter, f"{self.label} ({est.filter})", 1)
+            warnings.warn(text, w.category, stacklevel=2)
         return dataclasses.replace(est, filter=self.label, meta={**est.meta, **choice.meta()})
 
     def streamer(
@@ -207,6 +227,22 @@ class Auto(Estimator):
         return est.streamer(site, initial=initial, has=frozenset(has) & est.uses)
 
 
+def _run_quietly(
+    est: Estimator, flight: Flight, initial: InitialState | None
+) -> tuple[Estimate, list[warnings.WarningMessage]]:
+    """The estimate and the warnings the run emitted, held back."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = est.run(flight, initial=initial)
+    return out, list(caught)
+
+
+def _alert_seconds(est: Estimate) -> float:
+    """How long the estimate failed the tilt check, s."""
+    rows = est.alerts.get("tilt")
+    return float(np.sum(rows[:, 1] - rows[:, 0])) if rows is not None and len(rows) else 0.0
+
+
 def describe_choice(estimate: Estimate) -> str | None:
     """One line saying what auto ran for ``estimate`` (None when auto did not make it)."""
     meta = estimate.meta
@@ -215,4 +251,6 @@ def describe_choice(estimate: Estimate) -> str | None:
     line = f"{estimate.filter} ran {meta['auto']} on {meta.get('sensors', '?')} ({meta.get('auto_reason', '')})"
     if meta.get("auto_ignored"):
         line += f"; not used by it: {meta['auto_ignored']}"
+    if meta.get("auto_fallback"):
+        line += f"; fell back from the INS: {meta['auto_fallback']}"
     return line
