@@ -32,9 +32,11 @@ from windahrs.core.layout import (
     _JIT,
     C_HVERT,
     C_IBM,
+    C_KIND,
     C_MAG,
     C_SITE_MAG,
     INN_MAG,
+    KIND_INS,
     MAG_3D,
     MAG_OFF,
     R_GATE2_MAG,
@@ -174,7 +176,9 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
     if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
         accepted_at(x, sensor, t)
-    elif timed_out(prm, x, sensor, t):
+    elif timed_out(prm, x, sensor, t) and cfg[C_KIND] != KIND_INS:
+        # (not the INS: its velocity and wind are tied to the heading; turning it alone,
+        # on the ALFA flight, took its tilt from 8 to 35 deg)
         _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
         return
     if mode == MAG_3D:

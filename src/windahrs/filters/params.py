@@ -121,7 +121,8 @@ class EskfParams:
     flights, where a start that far off is caught by the reset below. reset_timeout s: when
     the accelerometer's gravity direction ([mekf], [mekf-air], [ekf7], [ekf10]) has been more
     than 45 deg from the state's for this long, or the magnetometer's heading more than
-    45 deg from it ([mekf], [mekf-air], [ins-wind], ...), the filter has lost it: the
+    45 deg from it (the same filters; not [ins-wind], whose velocity and wind are tied to
+    the heading), the filter has lost it: the
     attitude is levelled to the specific force (and the gyro bias reset), or turned about
     the vertical onto the field's heading, its spread reopened, logged in
     ``Estimate.resets`` and warned about. A gate that trusts a wrong state must not lock the
