@@ -356,3 +356,23 @@ def test_heading_only_magnetometer_mode_runs_and_converges() -> None:
     est = Mekf(EskfParams(mag_mode="heading")).run(fl)
     err = quat_angle(est.q_nb, fl.truth.q_nb)
     assert np.degrees(np.sqrt(np.mean(err[len(err) // 2 :] ** 2))) < 3.0
+
+
+def test_an_angle_of_attack_vane_alone_is_airspeed_and_synthetic_sideslip() -> None:
+    # A fixed wing with an angle-of-attack vane but no sideslip vane: a sample without a
+    # sideslip angle is a sample without vanes (core step_air: both angles finite), so
+    # every estimator gives exactly what it gives on the pitot-only flight, and the paper's
+    # filter (the air-flow direction needs both vanes) refuses the flight by name.
+    fl = simulate(make_scenario("fixedwing", wind=5.0, duration=5.0), np.random.default_rng(9))
+    assert fl.air is not None and fl.air.has_vanes
+    aoa_only = fl.replace(air=type(fl.air)(t=fl.air.t, tas=fl.air.tas, aoa=fl.air.aoa))
+    pitot = fl.replace(air=type(fl.air)(t=fl.air.t, tas=fl.air.tas))
+    assert aoa_only.air is not None and not aoa_only.air.has_vanes
+    for name in ("ins-wind", "mekf-air", "ekf10"):
+        est = make_estimator(name)
+        one, none, both = est.run(aoa_only), est.run(pitot), est.run(fl)
+        assert np.isfinite(one.q_nb).all(), name
+        assert np.array_equal(one.q_nb, none.q_nb), name
+        assert not np.array_equal(one.q_nb, both.q_nb), name  # the vanes do matter
+    with pytest.raises(MissingSensorError, match=r"'paper'.*found air data with only one vane \(aoa\)"):
+        make_estimator("paper").run(aoa_only)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from conftest import require_data
 from synthetic_logs import ulog_bytes
@@ -741,3 +742,97 @@ def test_unknown_fmt_and_option(tmp_path: Path) -> None:
     with pytest.raises(LogFormatError, match="option not known"):
         read_flight(src, colour="red")
 
+
+
+# --- CSV: mounting rotation, unknown magnetometer units, header blanks, one vane -------------
+
+
+def _with_manifest(d: Path, old: str, new: str) -> None:
+    text = (d / "windahrs.toml").read_text()
+    assert old in text
+    (d / "windahrs.toml").write_text(text.replace(old, new, 1))
+
+
+def test_csv_imu_mount_rotation_reads_back_the_body_frame(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
+    # An IMU (and its magnetometer) pitched 7.5 deg and yawed 2 deg against the body: the
+    # sensor reads v_s = C_bs^T v_b with C_bs = Rz(2) Ry(7.5) Rx(0) (scipy as the oracle).
+    flight = make_flight(rng)
+    c_bs = Rotation.from_euler("ZYX", [2.0, 7.5, 0.0], degrees=True).as_matrix()
+    assert flight.mag is not None
+    mounted = flight.replace(
+        imu=ImuStream(t=flight.imu.t, w_b=flight.imu.w_b @ c_bs, f_b=flight.imu.f_b @ c_bs),
+        mag=MagStream(t=flight.mag.t, mag_b=flight.mag.mag_b @ c_bs),
+    )
+    d = write_csv_dir(mounted, tmp_path / "rec")
+    _with_manifest(d, 'accel_unit = "g"', 'accel_unit = "g"\nmount_rpy_deg = [0, 7.5, 2]')
+    back = read_flight(d)
+    assert_flights_equal(flight, back)  # the magnetometer takes the IMU's mount by default
+    assert back.meta["imu.mount_rpy_deg"] == back.meta["mag.mount_rpy_deg"] == "0, 7.5, 2"
+    # A magnetometer of its own, mounted along the body: [mag] mount_rpy_deg = [0, 0, 0].
+    d2 = write_csv_dir(mounted.replace(mag=flight.mag), tmp_path / "rec2")
+    _with_manifest(d2, 'accel_unit = "g"', 'accel_unit = "g"\nmount_rpy_deg = [0, 7.5, 2]')
+    _with_manifest(d2, 'unit = "uT"', 'unit = "uT"\nmount_rpy_deg = [0, 0, 0]')
+    assert_flights_equal(flight, read_flight(d2))
+    _with_manifest(d2, "mount_rpy_deg = [0, 0, 0]", 'mount_rpy_deg = [0, "7.5"]')
+    with pytest.raises(LogFormatError, match=r"'mag\.mount_rpy_deg': expected a list of 3 finite"):
+        read_flight(d2)
+
+
+def test_csv_magnetometer_in_arbitrary_units(tmp_path: Path, rng: np.random.Generator) -> None:
+    flight = make_flight(rng)
+    assert flight.mag is not None
+    d = write_csv_dir(flight, tmp_path / "rec")  # written in uT: 1e6 x tesla
+    raw_norm = float(np.median(np.linalg.norm(flight.mag.mag_b, axis=1))) * 1e6
+    for unit in ("normalised", "arbitrary"):
+        _with_manifest(d, 'unit = "uT"' if unit == "normalised" else 'unit = "normalised"',
+                       f'unit = "{unit}"')
+        back = read_flight(d)
+        assert back.mag is not None and back.site.mag_n is None
+        # One factor: the median norm becomes the 50 uT placeholder; directions unchanged.
+        np.testing.assert_allclose(np.median(np.linalg.norm(back.mag.mag_b, axis=1)), 50e-6, rtol=1e-12)
+        np.testing.assert_allclose(back.mag.mag_b, flight.mag.mag_b * (50e-6 / (raw_norm * 1e-6)),
+                                   rtol=1e-9)
+        assert back.meta["mag.unit"] == "normalised"
+        assert back.meta["mag.raw_median_norm"] == pytest.approx(raw_norm, rel=1e-12)
+    # With the site's field given, the placeholder is its magnitude (the two agree).
+    _with_manifest(d, "[flight]\n", "[flight]\nmag_n = [20e-6, 0.0, 40e-6]\n")
+    back = read_flight(d)
+    assert back.mag is not None
+    np.testing.assert_allclose(np.median(np.linalg.norm(back.mag.mag_b, axis=1)),
+                               np.hypot(20e-6, 40e-6), rtol=1e-12)
+    _with_manifest(d, 'unit = "arbitrary"', 'unit = "counts"')
+    with pytest.raises(LogFormatError, match=r"'mag\.unit'.*'normalised', 'arbitrary'.*'counts'"):
+        read_flight(d)
+
+
+def test_csv_header_blanks_are_stripped_with_one_warning(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
+    flight = make_flight(rng)
+    d = write_csv_dir(flight, tmp_path / "rec")
+    text = (d / "mag.csv").read_text()
+    (d / "mag.csv").write_text(text.replace("t_us,mx,my,mz", "t_us, mx ,my,\tmz", 1))
+    match = r"mag\.csv: column\(s\) 'mx', 'mz' matched the header only after stripping"
+    with pytest.warns(UserWarning, match=match) as rec:
+        back = read_flight(d)
+    assert len([w for w in rec if "mag.csv" in str(w.message)]) == 1
+    assert_flights_equal(flight, back)
+    lines = text.splitlines()  # the same through the row-by-row reader (an empty cell)
+    lines[0] = "t_us, mx ,my,\tmz"
+    lines[3] = ",".join([*lines[3].split(",")[:3], ""])
+    (d / "mag.csv").write_text("\n".join(lines) + "\n")
+    with pytest.warns(UserWarning, match=r"mag\.csv: column\(s\) 'mx', 'mz'"):
+        read_flight(d)
+
+
+def test_csv_angle_of_attack_vane_without_sideslip(tmp_path: Path, rng: np.random.Generator) -> None:
+    flight = make_flight(rng)
+    d = write_csv_dir(flight, tmp_path / "rec")
+    _with_manifest(d, 'sideslip = "beta"\n', "")
+    back = read_flight(d)
+    assert back.air is not None and flight.air is not None and back.air.sideslip is not None
+    np.testing.assert_allclose(back.air.aoa, flight.air.aoa, atol=1e-9)
+    assert np.isnan(back.air.sideslip).all() and not back.air.has_vanes
+    np.testing.assert_allclose(back.air.tas, flight.air.tas, atol=1e-9)

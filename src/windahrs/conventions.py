@@ -35,7 +35,10 @@ __all__ = [
     "GRAVITY_N",
     "GYRO_UNITS",
     "MAG_DALIAN_N",
+    "MAG_NOMINAL_FIELD",
+    "MAG_RELATIVE_UNITS",
     "MAG_UNITS",
+    "SPEED_UNITS",
     "P_ENU_NED",
     "P_FLU_FRD",
     "UP_N",
@@ -61,10 +64,26 @@ P_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: proper rotation, 180 deg about x.
 P_FLU_FRD = np.diag([1.0, -1.0, -1.0])
 
-#: Units the edge converts from, to SI (rad/s, m/s^2, tesla): factor per unit name.
+#: Units the edge converts from, to SI (rad/s, m/s^2, tesla, m/s): factor per unit name.
+#: The one table for every reader and :meth:`windahrs.flight.Flight.from_arrays`.
 GYRO_UNITS: dict[str, float] = {"rad/s": 1.0, "deg/s": DEG}
 ACCEL_UNITS: dict[str, float] = {"m/s^2": 1.0, "g": G0}
-MAG_UNITS: dict[str, float] = {"T": 1.0, "uT": 1e-6, "nT": 1e-9, "gauss": 1e-4}
+MAG_UNITS: dict[str, float] = {
+    "T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "G": 1e-4, "gauss": 1e-4, "mG": 1e-7,
+}
+SPEED_UNITS: dict[str, float] = {"m/s": 1.0, "km/h": 1.0 / 3.6, "kn": 1852.0 / 3600.0}
+
+#: Magnetometer "units" for a field whose unit is unknown (a logger's raw counts, an
+#: uncalibrated scale): the readings are scaled so that their median norm is
+#: :data:`MAG_NOMINAL_FIELD` (:func:`windahrs.flight.mag_to_tesla`). Only the direction of
+#: the field is information then; use it for heading.
+MAG_RELATIVE_UNITS: tuple[str, ...] = ("normalised", "arbitrary")
+
+#: The placeholder magnitude of a field in :data:`MAG_RELATIVE_UNITS`, tesla: 50 uT, the
+#: middle of the Earth's surface field (about 25 to 65 uT, WMM/IGRF), so that noise and
+#: bias parameters given in tesla keep about their meaning relative to the field. It is not
+#: a measurement.
+MAG_NOMINAL_FIELD: float = 50e-6
 
 #: Earth's magnetic field at Dalian (38.9 N, 121.6 E), IGRF-13 for 2018, NED, tesla.
 #: |B| = 53.1 uT, declination -8.0 deg, inclination +57.0 deg (SPEC 1.6). The site of

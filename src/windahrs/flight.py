@@ -25,7 +25,15 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from windahrs.conventions import ACCEL_UNITS, G0, GYRO_UNITS, MAG_UNITS, P_FLU_FRD
+from windahrs.conventions import (
+    ACCEL_UNITS,
+    G0,
+    GYRO_UNITS,
+    MAG_NOMINAL_FIELD,
+    MAG_RELATIVE_UNITS,
+    MAG_UNITS,
+    P_FLU_FRD,
+)
 
 __all__ = [
     "AirDataStream",
@@ -38,6 +46,7 @@ __all__ = [
     "Site",
     "Truth",
     "WindStream",
+    "mag_to_tesla",
 ]
 
 F64 = NDArray[np.float64]
@@ -197,6 +206,11 @@ class AirDataStream:
 
     aoa, sideslip: (N,) angle of attack and sideslip in rad (FRD, SPEC 3.4.1:
     ``alpha = atan2(w, u)``, ``beta = asin(v / |V|)``), or None when no vanes exist.
+    One vane alone (an angle-of-attack vane without a sideslip vane, or the reverse) is
+    accepted: the missing angle is stored as NaN. A NaN angle does not make the sample
+    missing (the airspeed stays a measurement); estimators use the vanes of a sample only
+    when both angles are finite, otherwise airspeed (and a synthetic zero sideslip) as
+    without vanes.
     """
 
     t: F64
@@ -225,12 +239,23 @@ class AirDataStream:
                     f"max {float(np.nanmax(np.abs(a))):.4g}: degrees?",
                 )
             _set(self, name, a)
-        if (self.aoa is None) != (self.sideslip is None):
-            raise FlightError("air.aoa/air.sideslip", "both vanes or neither", "only one")
+        if (self.aoa is None) != (self.sideslip is None):  # one vane: the other angle NaN
+            _set(self, "aoa" if self.aoa is None else "sideslip", np.full(len(t), np.nan))
 
     @property
     def has_vanes(self) -> bool:
-        return self.aoa is not None
+        """Both vane angles exist on at least one sample (what the air-vector fusion needs)."""
+        if self.aoa is None or self.sideslip is None:
+            return False
+        return bool((np.isfinite(self.aoa) & np.isfinite(self.sideslip)).any())
+
+    @property
+    def vane_names(self) -> tuple[str, ...]:
+        """The vane angles the stream carries (some finite value): "aoa", "sideslip"."""
+        return tuple(
+            n for n in ("aoa", "sideslip")
+            if getattr(self, n) is not None and np.isfinite(getattr(self, n)).any()
+        )
 
 
 @dataclass(frozen=True)
@@ -401,7 +426,7 @@ class Flight:
         rate: float | None = None,
         gyro_units: Literal["rad/s", "deg/s"] = "rad/s",
         accel_units: Literal["m/s^2", "g"] = "m/s^2",
-        mag_units: Literal["T", "uT", "nT", "gauss"] = "T",
+        mag_units: Literal["T", "mT", "uT", "nT", "G", "gauss", "mG", "normalised", "arbitrary"] = "T",
         frame: Literal["FRD", "FLU"] = "FRD",
         reference: ArrayLike | None = None,
         reference_kind: ReferenceKind = "mocap",
@@ -416,8 +441,10 @@ class Flight:
         sensor reads +g upward); mag: (N, 3) magnetic field on the same time grid, or
         None. Rows with NaN are missing samples. Units (keyword-only): ``gyro_units``
         "rad/s" | "deg/s", ``accel_units`` "m/s^2" | "g" (9.80665 m/s^2), ``mag_units``
-        "T" | "uT" | "nT" | "gauss". frame: body axes of the arrays, "FRD" (forward,
-        right, down; windahrs) or "FLU" (forward, left, up; ROS, most vqf examples),
+        "T" | "mT" | "uT" | "nT" | "G" | "gauss" | "mG", or "normalised" (alias "arbitrary")
+        for a field in unknown units, scaled by :func:`mag_to_tesla` (heading only).
+        frame: body axes of the arrays, "FRD" (forward, right, down; windahrs) or "FLU"
+        (forward, left, up; ROS, most vqf examples),
         converted with :data:`~windahrs.conventions.P_FLU_FRD`. reference: (N, 4) a
         reference attitude [w, x, y, z] on the same grid (body to NED for "FRD", FLU body
         to ENU for "FLU", as ROS logs it), labelled ``reference_kind``. site: gravity and
@@ -445,8 +472,10 @@ class Flight:
             t_s = _check_time("t", t_s)
         g = g * _unit("gyro_units", gyro_units, GYRO_UNITS)
         a = a * _unit("accel_units", accel_units, ACCEL_UNITS)
+        extra_meta: dict[str, Any] = {}
         if m is not None:
-            m = m * _unit("mag_units", mag_units, MAG_UNITS)
+            site_field = None if site is None else site.mag_n
+            m = mag_to_tesla(m, mag_units, site_mag_n=site_field, name="mag_units", meta=extra_meta)
         if frame not in ("FRD", "FLU"):
             raise FlightError("frame", "'FRD' or 'FLU'", repr(frame))
         ref = None
@@ -478,7 +507,7 @@ class Flight:
             mag=mag_stream,
             reference=ref,
             site=site if site is not None else Site(),
-            meta={"source": "arrays", **(meta or {})},
+            meta={"source": "arrays", **extra_meta, **(meta or {})},
         )
 
     @property
@@ -506,7 +535,9 @@ class Flight:
             stream = getattr(self, name)
             lines.append(f"{name:<10} {_rate_text(t)}{_missing_text(stream)}")
         if self.air is not None:
-            lines.append(f"{'':<10} vanes (aoa, sideslip): {'yes' if self.air.has_vanes else 'no'}")
+            vanes = self.air.vane_names
+            text = "yes" if self.air.has_vanes else ("only " + vanes[0] if vanes else "no")
+            lines.append(f"{'':<10} vanes (aoa, sideslip): {text}")
         lines.append(f"truth      {'yes' if self.truth is not None else 'no'}")
         if self.reference is not None:
             ref = self.reference
@@ -544,6 +575,44 @@ def _raw_rows(name: str, value: ArrayLike | None, n: int | None = None) -> F64:
     if not np.isfinite(a).all(axis=1).any():
         raise FlightError(name, "at least one finite sample", f"only NaN in {len(a)} rows")
     return a
+
+
+def mag_to_tesla(
+    mag: ArrayLike,
+    unit: str,
+    *,
+    site_mag_n: ArrayLike | None = None,
+    name: str = "mag.unit",
+    meta: dict[str, Any] | None = None,
+) -> F64:
+    """Magnetometer readings (N, 3) in ``unit`` to tesla, a new array.
+
+    unit: a key of :data:`~windahrs.conventions.MAG_UNITS` (a fixed factor), or one of
+    :data:`~windahrs.conventions.MAG_RELATIVE_UNITS` ("normalised", "arbitrary": the unit
+    is unknown): the readings are then scaled by one factor so that the median norm of
+    the finite rows is ``|site_mag_n|`` when the site's field is known, else
+    :data:`~windahrs.conventions.MAG_NOMINAL_FIELD` (50 uT, a placeholder), and ``meta``
+    (when given) receives ``mag.unit`` = "normalised" and ``mag.raw_median_norm`` (the
+    median norm in the input's units). The magnitude is then no information: estimators
+    compare the field only with its own first samples (site unknown) or the site's field.
+    Raises :class:`FlightError` naming ``name`` for an unknown unit.
+    """
+    m = np.array(mag, dtype=np.float64)
+    if unit in MAG_UNITS:
+        return m * MAG_UNITS[unit]
+    if unit not in MAG_RELATIVE_UNITS:
+        units = [*MAG_UNITS, *MAG_RELATIVE_UNITS]
+        raise FlightError(name, f"one of {', '.join(map(repr, units))}", repr(unit))
+    raw = _median_norm(m) if m.ndim == 2 and m.shape[-1] == 3 else float("nan")
+    if not (np.isfinite(raw) and raw > 0):
+        raise FlightError(name, f"{unit!r} readings with a finite, non-zero median norm", repr(raw))
+    target = MAG_NOMINAL_FIELD
+    if site_mag_n is not None:
+        target = float(np.linalg.norm(np.asarray(site_mag_n, dtype=np.float64)))
+    if meta is not None:
+        meta["mag.unit"] = "normalised"
+        meta["mag.raw_median_norm"] = raw
+    return m * (target / raw)
 
 
 def _unit(name: str, unit: str, table: dict[str, float]) -> float:

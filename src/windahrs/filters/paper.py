@@ -223,7 +223,12 @@ class PaperEKF(AdditiveEstimator):
 
     def check(self, flight: Flight) -> None:
         if flight.air is None or not flight.air.has_vanes:
-            found = "no air data" if flight.air is None else "air data without vanes (pitot only)"
+            if flight.air is None:
+                found = "no air data"
+            elif flight.air.vane_names:
+                found = f"air data with only one vane ({flight.air.vane_names[0]})"
+            else:
+                found = "air data without vanes (pitot only)"
             raise MissingSensorError(
                 self.name,
                 "air",

@@ -124,7 +124,7 @@ def read_ansfl(path: str | os.PathLike[str], *, imu: int | None = None, gnss: bo
     imu_path = imus[imu]
     gt_path = d / ANSFL_GT_FILE
     imu_table = _read_table(imu_path, "time", _IMU_GYRO + _IMU_ACCEL)
-    gt_table = _read_table(gt_path, "time", _GT_EULER + _GT_POSITION)
+    gt_table = _read_table(gt_path, "time", _GT_EULER + _GT_POSITION, warn_stripped=False)
 
     meta: dict[str, Any] = {
         "source": d.name,

@@ -24,7 +24,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from windahrs.conventions import DEG, G0
+from windahrs.conventions import (
+    ACCEL_UNITS,
+    DEG,
+    G0,
+    GYRO_UNITS,
+    MAG_RELATIVE_UNITS,
+    MAG_UNITS,
+    SPEED_UNITS,
+)
 from windahrs.flight import (
     AirDataStream,
     Flight,
@@ -34,6 +42,7 @@ from windahrs.flight import (
     Reference,
     Site,
     WindStream,
+    mag_to_tesla,
 )
 from windahrs.io.edge import (
     LogFormatError,
@@ -44,6 +53,7 @@ from windahrs.io.edge import (
     velocity_from_positions,
 )
 from windahrs.rotation import (
+    dcm_from_quat,
     quat_enu_flu_to_ned_frd,
     quat_enu_rfu_to_ned_frd,
     quat_from_euler,
@@ -88,13 +98,19 @@ class _Table:
     time: NDArray[Any]  # int64 when every stamp is an integer, else float64
     values: dict[str, F64]
     dropped_last_row: bool
+    stripped: tuple[str, ...] = ()  # wanted columns whose header entry has blanks around
 
 
-def _read_table(path: Path, time_col: str, columns: Sequence[str]) -> _Table:
+def _read_table(
+    path: Path, time_col: str, columns: Sequence[str], *, warn_stripped: bool = True
+) -> _Table:
     """Read ``time_col`` and ``columns`` of a CSV file with a header row.
 
     Empty cells are NaN (missing samples). A final row with too few fields (a file cut
     while being written) is dropped and flagged; any other malformed row is an error.
+    Header names are compared after stripping blanks (spaces, tabs) around them; a column
+    found only that way is named in one warning per file (``warn_stripped``; off for
+    formats whose files are known to pad their header, e.g. ANSFL's DJI log).
 
     Well-formed numeric files are parsed by numpy (:func:`_read_table_fast`); anything
     else (empty cells, text columns, quotes, a cut last row, errors) row by row here.
@@ -102,7 +118,21 @@ def _read_table(path: Path, time_col: str, columns: Sequence[str]) -> _Table:
     if not path.is_file():
         raise LogFormatError(path, "no such file")
     fast = _read_table_fast(path, time_col, columns)
-    return fast if fast is not None else _read_table_rows(path, time_col, columns)
+    table = fast if fast is not None else _read_table_rows(path, time_col, columns)
+    if table.stripped and warn_stripped:
+        names = ", ".join(repr(c) for c in table.stripped)
+        warnings.warn(
+            f"{path}: column(s) {names} matched the header only after stripping the blanks "
+            "around the header's names",
+            UserWarning,
+            stacklevel=3,
+        )
+    return table
+
+
+def _stripped(raw_header: Sequence[str], wanted: Sequence[str]) -> tuple[str, ...]:
+    """The wanted columns that the raw header spells with blanks around them."""
+    return tuple(c for c in wanted if c not in raw_header)
 
 
 def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Table:
@@ -117,6 +147,7 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
         raise LogFormatError(path, "empty file (expected a header row)")
     header = [h.strip() for h in lines[0][1]]
     wanted = [time_col, *columns]
+    stripped = _stripped(lines[0][1], wanted)
     missing = [c for c in wanted if c not in header]
     if missing:
         shown = ", ".join(header[:12]) + (", ..." if len(header) > 12 else "")
@@ -141,7 +172,7 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
     values = {
         c: _parse_floats(path, c, v, linenos) for c, v in zip(columns, cells[1:], strict=True)
     }
-    return _Table(path, time, values, dropped)
+    return _Table(path, time, values, dropped, stripped)
 
 
 def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Table | None:
@@ -161,7 +192,8 @@ def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
     first, sep, body = text.partition("\n")
     if not sep or not first.strip() or '"' in text:  # quoting: the csv module's rules
         return None
-    header = [h.strip() for h in first.split(",")]
+    raw_header = first.rstrip("\r").split(",")
+    header = [h.strip() for h in raw_header]
     wanted = [time_col, *columns]
     if any(c not in header for c in wanted):
         return None
@@ -184,7 +216,7 @@ def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
     if time.dtype.kind == "f" and not np.isfinite(time).all():
         return None  # the slow path names the line of the bad stamp
     values = {c: np.ascontiguousarray(table[f"f{i}"]) for c, i in zip(columns, idx[1:], strict=True)}
-    return _Table(path, time, values, False)
+    return _Table(path, time, values, False, _stripped(raw_header, wanted))
 
 
 def _parse_time(path: Path, name: str, cells: list[str], linenos: list[int]) -> NDArray[Any]:
@@ -397,17 +429,14 @@ def read_alfa(
 # --- generic CSV directory ----------------------------------------------------------------
 
 _TIME_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
-_GYRO = {"rad/s": 1.0, "deg/s": DEG}
-_ACCEL = {"m/s^2": 1.0, "g": G0}
-_MAG = {"T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "G": 1e-4, "mG": 1e-7}
-_SPEED = {"m/s": 1.0, "km/h": 1.0 / 3.6, "kn": 1852.0 / 3600.0}
+_MAG = (*MAG_UNITS, *MAG_RELATIVE_UNITS)
 _ANGLE = {"rad": 1.0, "deg": DEG}
 _FRAMES = ("ned_frd", "enu_flu", "enu_rfu")
 _KINDS = ("autopilot", "mocap", "truth")
 _COMMON = ("file", "time", "time_unit", "frame")
 _SECTION_KEYS: dict[str, tuple[str, ...]] = {
-    "imu": (*_COMMON, "gyro", "gyro_unit", "accel", "accel_unit"),
-    "mag": (*_COMMON, "columns", "unit"),
+    "imu": (*_COMMON, "gyro", "gyro_unit", "accel", "accel_unit", "mount_rpy_deg"),
+    "mag": (*_COMMON, "columns", "unit", "mount_rpy_deg"),
     "gnss": (*_COMMON, "velocity", "position", "unit"),
     "air": (*_COMMON, "tas", "unit", "aoa", "sideslip", "angle_unit"),
     "reference": (*_COMMON, "kind", "heading_free", "quaternion", "quaternion_order", "euler",
@@ -472,6 +501,14 @@ class _Manifest:
         if not (isinstance(v, list) and len(v) == n and all(isinstance(c, str) for c in v)):
             raise self.fail(f"{sec}.{key}", f"a list of {n} column names", v)
         return list(v)
+
+    def numbers(self, sec: str, key: str, n: int, what: str) -> F64:
+        v = self.get(sec, key, required=True)
+        if not (isinstance(v, list) and len(v) == n
+                and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+                and all(math.isfinite(x) for x in v)):
+            raise self.fail(f"{sec}.{key}", f"a list of {n} finite numbers ({what})", v)
+        return np.array(v, dtype=np.float64)
 
     def has(self, sec: str, key: str) -> bool:
         return key in (self.data.get(sec) or {})
@@ -569,11 +606,26 @@ def _imu_cols(man: _Manifest) -> list[str]:
 def _csv_imu(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> ImuStream:
     body, _ = _body_nav(_frame(man, "imu"))
     cols = _imu_cols(man)
-    kw = _GYRO[man.choice("imu", "gyro_unit", _GYRO)]
-    ka = _ACCEL[man.choice("imu", "accel_unit", _ACCEL)]
-    w = body(finite_rows(_stack(v, cols[:3])) * kw)
-    f = body(finite_rows(_stack(v, cols[3:])) * ka)
+    kw = GYRO_UNITS[man.choice("imu", "gyro_unit", GYRO_UNITS)]
+    ka = ACCEL_UNITS[man.choice("imu", "accel_unit", ACCEL_UNITS)]
+    mount = _mount(man, "imu", meta)
+    w = mount(body(finite_rows(_stack(v, cols[:3])) * kw))
+    f = mount(body(finite_rows(_stack(v, cols[3:])) * ka))
     return ImuStream(t=t, w_b=w, f_b=f)
+
+
+def _mount(man: _Manifest, sec: str, meta: dict[str, Any]) -> Callable[[F64], F64]:
+    """The sensor-to-body rotation of ``[sec] mount_rpy_deg`` (the magnetometer takes the
+    IMU's when it has none of its own): ZYX Euler angles of the sensor's axes (FRD after
+    the ``frame`` conversion) in the body frame, ``C_bs = Rz(yaw) Ry(pitch) Rx(roll)``,
+    applied as ``v_b = C_bs v_s``. Identity when neither table gives one."""
+    src = sec if man.has(sec, "mount_rpy_deg") else "imu"
+    if not man.has(src, "mount_rpy_deg"):
+        return lambda v: v
+    rpy = man.numbers(src, "mount_rpy_deg", 3, "roll, pitch, yaw in degrees")
+    meta[f"{sec}.mount_rpy_deg"] = ", ".join(f"{a:g}" for a in rpy)
+    c_bs = dcm_from_quat(quat_from_euler(rpy * DEG))
+    return lambda v: v @ c_bs.T
 
 
 def _mag_cols(man: _Manifest) -> list[str]:
@@ -582,8 +634,11 @@ def _mag_cols(man: _Manifest) -> list[str]:
 
 def _csv_mag(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> MagStream:
     body, _ = _body_nav(_frame(man, "mag"))
-    k = _MAG[man.choice("mag", "unit", _MAG)]
-    return MagStream(t=t, mag_b=body(finite_rows(_stack(v, _mag_cols(man))) * k))
+    unit = man.choice("mag", "unit", _MAG)
+    mount = _mount(man, "mag", meta)
+    m = mag_to_tesla(finite_rows(_stack(v, _mag_cols(man))), unit,
+                     site_mag_n=_site(man).mag_n, name="mag.unit", meta=meta)
+    return MagStream(t=t, mag_b=mount(body(m)))
 
 
 def _gnss_cols(man: _Manifest) -> list[str]:
@@ -596,7 +651,7 @@ def _csv_gnss(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -
     cols = _gnss_cols(man)
     if man.has("gnss", "velocity"):
         _, nav = _body_nav(_frame(man, "gnss"))
-        k = _SPEED[man.choice("gnss", "unit", _SPEED, "m/s")]
+        k = SPEED_UNITS[man.choice("gnss", "unit", SPEED_UNITS, "m/s")]
         return GnssStream(t=t, v_n=nav(finite_rows(_stack(v, cols)) * k))
     meta["gnss.derived_from"] = "position"
     return GnssStream(t=t, v_n=_velocity_from_positions(t, _stack(v, cols)))
@@ -632,23 +687,22 @@ def _velocity_from_positions(t: F64, lla: F64) -> F64:
 
 def _air_cols(man: _Manifest) -> list[str]:
     cols = [man.text("air", "tas")]
-    if man.has("air", "aoa") != man.has("air", "sideslip"):
-        raise man.fail("air.aoa/air.sideslip", "both vane columns or neither", "only one")
-    if man.has("air", "aoa"):
-        cols += [man.text("air", "aoa"), man.text("air", "sideslip")]
-    return cols
+    return cols + [man.text("air", k) for k in ("aoa", "sideslip") if man.has("air", k)]
 
 
 def _csv_air(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> AirDataStream:
     cols = _air_cols(man)
-    k = _SPEED[man.choice("air", "unit", _SPEED, "m/s")]
+    k = SPEED_UNITS[man.choice("air", "unit", SPEED_UNITS, "m/s")]
     tas = finite_rows(v[cols[0]]) * k
     if len(cols) == 1:
         return AirDataStream(t=t, tas=tas)
     ka = _ANGLE[man.choice("air", "angle_unit", _ANGLE, "rad")]
-    return AirDataStream(
-        t=t, tas=tas, aoa=finite_rows(v[cols[1]]) * ka, sideslip=finite_rows(v[cols[2]]) * ka
-    )
+    # One vane alone: the stream stores the other angle as NaN (samples without vanes).
+    vanes = {
+        name: finite_rows(v[man.text("air", name)]) * ka if man.has("air", name) else None
+        for name in ("aoa", "sideslip")
+    }
+    return AirDataStream(t=t, tas=tas, **vanes)
 
 
 def _ref_cols(man: _Manifest) -> list[str]:
@@ -696,7 +750,7 @@ def _wind_cols(man: _Manifest) -> list[str]:
 
 def _csv_wind(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> WindStream:
     _, nav = _body_nav(_frame(man, "ref_wind"))
-    k = _SPEED[man.choice("ref_wind", "unit", _SPEED, "m/s")]
+    k = SPEED_UNITS[man.choice("ref_wind", "unit", SPEED_UNITS, "m/s")]
     sign = -1.0 if man.choice("ref_wind", "convention", ("to", "from"), "to") == "from" else 1.0
     return WindStream(t=t, wind_n=nav(finite_rows(_stack(v, _wind_cols(man))) * k * sign))
 
