@@ -2,37 +2,90 @@
 R = gnss_sigma^2 I, gated at gate_gnss sigmas ([ins-wind]). Every filter remembers the last
 GNSS velocity and its difference (the accelerometer compensation of :mod:`windahrs.aid.gravity`
 and the velocity input of [mekf-air]). Innovation key: ``"gnss"`` (3 rows).
+
+Reset: GNSS velocity kept out by its gate for ``reset_timeout`` means the INS has lost its
+velocity (and with it, usually, its attitude: one 40 rad/s gyro spike tilts it by 10 deg and
+the gate then rejects every sample that would fix it, issue 13). The velocity is reset to the
+sample, as PX4 EKF2 (``resetVelocityToGnss`` on its GNSS fusion timeout) and ArduPilot EKF3
+(``ResetVelocity`` on ``velTimeout``) do. Those filters reset the velocity alone; here the
+states the lost velocity has left unguarded are reset too, because with the gate closed the
+aids left (air data, the magnetometer) have been steering them unopposed, and a velocity
+reset alone is rejected again 5 s later (measured on the ALFA flight: a reset every 5 s):
+
+* the attitude's spread returns to init_att (so that the next samples can correct a tilt the
+  rejected ones could not), and a tilt more than 45 deg from the GNSS-compensated specific
+  force is levelled to it (the gravity aid's rule: beyond what a linear update can undo);
+* the gyro and accelerometer biases, learnt while the state was lost, restart from zero with
+  their initial spreads (the gravity reset's rule; PX4 reopens the gyro bias after its
+  emergency yaw reset); the magnetometer bias's spread is reopened;
+* the wind, fitted to a wrong velocity, restarts from the next air sample as at
+  initialisation (PX4 EKF2 likewise resets the wind from the airspeed when it restarts
+  airspeed fusion);
+* the magnetometer is no longer fused for the rest of the run: PX4 EKF2 declares it faulty
+  (``mag_fault``) after its GNSS-triggered emergency yaw reset, "otherwise its fusion could
+  drag the yaw around and cause another navigation failure". With GNSS velocity and air data
+  the heading stays observable through the vehicle's accelerations (the turns).
+
+Logged in the ``reset`` log (size: the velocity jump, m/s) and warned about.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
+from windahrs.aid.gravity import LOST_COS
 from windahrs.core.kalman import (
     _fuse,
 )
 from windahrs.core.layout import (
     _JIT,
+    C_IBA,
+    C_IBG,
+    C_IBM,
     C_IV,
+    C_IW,
     C_KIND,
     INN_GNSS,
     KIND_INS,
     R_GATE2_GNSS,
     R_GNSS_VAR,
+    R_GRAV,
+    R_P0_BA,
+    R_P0_BG,
+    R_P0_BM,
+    R_P0_W,
+    R_P0_WV,
     S_AGNSS,
+    S_MAG_FAULT,
     S_VGNSS,
+    S_WPEND,
     W_H,
     W_NU,
     W_R,
     X_AGNSS,
+    X_BA,
+    X_FLAST,
+    X_Q,
     X_TGNSS,
     X_V,
     X_VGNSS,
 )
+from windahrs.core.quat import _dcm9
+from windahrs.core.reset import (
+    accepted_at,
+    level_to,
+    log_reset,
+    reopen,
+    reset_gyro_bias,
+    set_attitude_cov,
+    timed_out,
+)
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
-PARAMS = ("gnss_sigma", "gate_gnss")
+PARAMS = ("gnss_sigma", "gate_gnss", "reset_timeout")
 
 
 @njit(inline="always", **_JIT)
@@ -65,4 +118,53 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             sup[0, k] = iv + k
             work[W_NU, k] = row[k] - x[X_V + k]
         sensor, m, ns = np.int64(INN_GNSS), np.int64(3), np.int64(3)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_GNSS])
+        if timed_out(prm, x, sensor, t):
+            reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row)
+        elif _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_GNSS]):
+            accepted_at(x, sensor, t)
+
+
+@njit(**_JIT)
+def _level_if_lost(prm, x):
+    """Level the attitude when the last specific force is more than 45 deg (LOST_COS) from
+    the state's prediction of it from the GNSS acceleration, ``f_b = C_bn (a_n - g_n)``: a
+    tilt error that large is beyond what a linear update can undo (the gravity reset's rule)."""
+    g = prm[R_GRAV]
+    f0, f1, f2 = x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2]
+    d0, d1, d2 = -x[X_AGNSS], -x[X_AGNSS + 1], g - x[X_AGNSS + 2]  # -(a_n - g_n)
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    b0 = c[0] * d0 + c[3] * d1 + c[6] * d2
+    b1 = c[1] * d0 + c[4] * d1 + c[7] * d2
+    b2 = c[2] * d0 + c[5] * d1 + c[8] * d2
+    nf, nb = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    if nf > 0 and nb > 0 and -(f0 * b0 + f1 * b1 + f2 * b2) < LOST_COS * nf * nb:
+        level_to(x, -f0, -f1, -f2, d0, d1, d2)
+
+
+@njit(**_JIT)
+def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
+    """GNSS velocity kept out by its gate for reset_timeout (module docstring): velocity to
+    the sample row[:3] m/s NED at t s (spread gnss_sigma), the attitude's spread reopened (a
+    tilt beyond 45 deg levelled), the biases restarted, the wind restarted from the next air
+    sample, the magnetometer no longer fused; logged."""
+    iv = cfg[C_IV]
+    reopen(cfg, P, iv, prm[R_GNSS_VAR], prm[R_GNSS_VAR])
+    dv2 = 0.0
+    for a in range(3):
+        dv2 += (row[a] - x[X_V + a]) ** 2
+        x[X_V + a] = row[a]
+    if flags[S_AGNSS] == 1:
+        _level_if_lost(prm, x)
+    set_attitude_cov(cfg, prm, x, P, work)
+    reset_gyro_bias(cfg, prm, x, P)
+    if cfg[C_IBA] >= 0:
+        for a in range(3):
+            x[X_BA + a] = 0.0
+        reopen(cfg, P, cfg[C_IBA], prm[R_P0_BA], prm[R_P0_BA])
+    if cfg[C_IBM] >= 0:
+        reopen(cfg, P, cfg[C_IBM], prm[R_P0_BM], prm[R_P0_BM])
+    flags[S_MAG_FAULT] = 1
+    if cfg[C_IW] >= 0:
+        reopen(cfg, P, cfg[C_IW], prm[R_P0_W], prm[R_P0_WV])
+        flags[S_WPEND] = 1  # the wind from the next air sample, as at initialisation
+    log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_GNSS), t, math.sqrt(dv2))

@@ -147,6 +147,7 @@ from windahrs.core.layout import (
     S_FMAG,
     S_FV,
     S_INIT,
+    S_MAG_FAULT,
     S_MBAR,
     S_VGNSS,
     S_WIN,
@@ -362,7 +363,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 @njit(inline="always", **_JIT)
 def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite): row[:3] tesla, body, at t s."""
-    if mag_ready(cfg, prm, x, flags, P, work, row):
+    if mag_ready(cfg, prm, x, flags, P, work, row) and flags[S_MAG_FAULT] == 0:
         fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 

@@ -174,8 +174,9 @@ S_SEQ = 9  # sensors that have logged so far
 S_FBAR = 10  # the low-passed specific force is set
 S_MBAR = 11  # the low-passed magnetic field is set
 S_WIN = 12  # the initialisation window has a sample
-K_SKIP = 13  # (4,) NaN samples skipped: imu, mag, gnss, air
-L_CNT = 17  # (N_SENSORS,) log rows used per sensor
+S_MAG_FAULT = 13  # the magnetometer is no longer fused (declared faulty by a GNSS reset)
+K_SKIP = 14  # (4,) NaN samples skipped: imu, mag, gnss, air
+L_CNT = 18  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 
