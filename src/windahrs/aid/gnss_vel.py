@@ -36,9 +36,9 @@ import math
 import numpy as np
 from numba import njit
 
-from windahrs.aid.gravity import LOST_COS
 from windahrs.core.kalman import (
     _fuse,
+    _lowpass_gain,
 )
 from windahrs.core.layout import (
     _JIT,
@@ -51,6 +51,7 @@ from windahrs.core.layout import (
     INN_GNSS,
     KIND_INS,
     R_GATE2_GNSS,
+    R_GNSS_TAU,
     R_GNSS_VAR,
     R_GRAV,
     R_P0_BA,
@@ -59,6 +60,8 @@ from windahrs.core.layout import (
     R_P0_W,
     R_P0_WV,
     S_AGNSS,
+    S_AINS,
+    S_FINS,
     S_MAG_FAULT,
     S_VGNSS,
     S_WPEND,
@@ -66,14 +69,15 @@ from windahrs.core.layout import (
     W_NU,
     W_R,
     X_AGNSS,
+    X_AINS,
+    X_FINS,
     X_BA,
-    X_FLAST,
     X_Q,
     X_TGNSS,
     X_V,
     X_VGNSS,
 )
-from windahrs.core.quat import _dcm9
+from windahrs.core.quat import _dcm9, _qexp
 from windahrs.core.reset import (
     accepted_at,
     level_to,
@@ -85,18 +89,31 @@ from windahrs.core.reset import (
 )
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
-PARAMS = ("gnss_sigma", "gate_gnss", "reset_timeout")
+PARAMS = ("gnss_sigma", "gnss_timing_sigma", "gate_gnss", "reset_timeout")
+
+
+#: Time constant, s, of the means that level the attitude at a GNSS reset: the specific force
+#: in an almost inertial frame (rotated into each new body frame by the gyro) and the GNSS
+#: acceleration in NED. Over a few seconds rotor vibration and manoeuvres average out of
+#: both alike, while one sample of a multirotor's accelerometer is off by several m/s^2
+#: (VQF's tau_acc, 3 s, the same low-pass of the specific force; also [mekf]'s accel_lowpass).
+LEVEL_TAU = 3.0
 
 
 @njit(inline="always", **_JIT)
 def remember_gnss(x, flags, t, row):
     """Every filter keeps the last GNSS velocity (row[:3] m/s NED at t s) and its
-    difference quotient, the acceleration used to compensate the accelerometer."""
+    difference quotient, the acceleration used to compensate the accelerometer (and its
+    mean over LEVEL_TAU, the INS reset's levelling)."""
     if flags[S_VGNSS] == 1 and t > x[X_TGNSS]:
         dt = t - x[X_TGNSS]
         for a in range(3):
             x[X_AGNSS + a] = (row[a] - x[X_VGNSS + a]) / dt
         flags[S_AGNSS] = 1
+        k = 1.0 if flags[S_AINS] == 0 else _lowpass_gain(dt, LEVEL_TAU)
+        for a in range(3):
+            x[X_AINS + a] += k * (x[X_AGNSS + a] - x[X_AINS + a])
+        flags[S_AINS] = 1
     for a in range(3):
         x[X_VGNSS + a] = row[a]
     x[X_TGNSS] = t
@@ -110,11 +127,13 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     if cfg[C_KIND] == KIND_INS:
         iv = cfg[C_IV]
         H, R = work[W_H : W_H + 3], work[W_R : W_R + 3]
+        tau = prm[R_GNSS_TAU] if flags[S_AGNSS] == 1 else 0.0
         for k in range(3):
             H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0
             for a in range(3):
                 H[k, iv + a] = 1.0 if k == a else 0.0
-                R[k, a] = prm[R_GNSS_VAR] if k == a else 0.0
+                R[k, a] = 0.0
+            R[k, k] = prm[R_GNSS_VAR] + (tau * x[X_AGNSS + k]) ** 2  # noise, and timing: late by tau, off by a tau
             sup[0, k] = iv + k
             work[W_NU, k] = row[k] - x[X_V + k]
         sensor, m, ns = np.int64(INN_GNSS), np.int64(3), np.int64(3)
@@ -124,21 +143,30 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             accepted_at(x, sensor, t)
 
 
+@njit(inline="always", **_JIT)
+def remember_specific_force(x, flags, wx, wy, wz, fx, fy, fz, dt):
+    """The INS's mean specific force over LEVEL_TAU in the current body frame: the mean is
+    rotated into the new body frame by the gyro increment (w, bias-corrected, rad/s, over
+    dt s), then blended with f (m/s^2)."""
+    if flags[S_FINS] == 0:
+        x[X_FINS], x[X_FINS + 1], x[X_FINS + 2] = fx, fy, fz
+        flags[S_FINS] = 1
+        return
+    e = _qexp(wx * dt, wy * dt, wz * dt)
+    c = _dcm9(e[0], e[1], e[2], e[3])
+    v0, v1, v2 = x[X_FINS], x[X_FINS + 1], x[X_FINS + 2]
+    k = _lowpass_gain(dt, LEVEL_TAU)
+    x[X_FINS] = c[0] * v0 + c[3] * v1 + c[6] * v2 + k * (fx - (c[0] * v0 + c[3] * v1 + c[6] * v2))
+    x[X_FINS + 1] = c[1] * v0 + c[4] * v1 + c[7] * v2 + k * (fy - (c[1] * v0 + c[4] * v1 + c[7] * v2))
+    x[X_FINS + 2] = c[2] * v0 + c[5] * v1 + c[8] * v2 + k * (fz - (c[2] * v0 + c[5] * v1 + c[8] * v2))
+
+
 @njit(**_JIT)
-def _level_if_lost(prm, x):
-    """Level the attitude when the last specific force is more than 45 deg (LOST_COS) from
-    the state's prediction of it from the GNSS acceleration, ``f_b = C_bn (a_n - g_n)``: a
-    tilt error that large is beyond what a linear update can undo (the gravity reset's rule)."""
+def _level(prm, x):
+    """Level the attitude so that the mean specific force matches the mean GNSS
+    acceleration, ``f_b = C_bn (a_n - g_n)`` (both over LEVEL_TAU)."""
     g = prm[R_GRAV]
-    f0, f1, f2 = x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2]
-    d0, d1, d2 = -x[X_AGNSS], -x[X_AGNSS + 1], g - x[X_AGNSS + 2]  # -(a_n - g_n)
-    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    b0 = c[0] * d0 + c[3] * d1 + c[6] * d2
-    b1 = c[1] * d0 + c[4] * d1 + c[7] * d2
-    b2 = c[2] * d0 + c[5] * d1 + c[8] * d2
-    nf, nb = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-    if nf > 0 and nb > 0 and -(f0 * b0 + f1 * b1 + f2 * b2) < LOST_COS * nf * nb:
-        level_to(x, -f0, -f1, -f2, d0, d1, d2)
+    level_to(x, -x[X_FINS], -x[X_FINS + 1], -x[X_FINS + 2], -x[X_AINS], -x[X_AINS + 1], g - x[X_AINS + 2])
 
 
 @njit(**_JIT)
@@ -153,8 +181,8 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     for a in range(3):
         dv2 += (row[a] - x[X_V + a]) ** 2
         x[X_V + a] = row[a]
-    if flags[S_AGNSS] == 1:
-        _level_if_lost(prm, x)
+    if flags[S_FINS] == 1 and flags[S_AINS] == 1:
+        _level(prm, x)
     set_attitude_cov(cfg, prm, x, P, work)
     reset_gyro_bias(cfg, prm, x, P)
     if cfg[C_IBA] >= 0:
