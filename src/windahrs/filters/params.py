@@ -386,19 +386,19 @@ def read_param_file(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
 
 
-#: Below this IMU rate (Hz) the default process noise is too small (see imu_rate_warning).
+#: Below this IMU rate (Hz) a stream is taken to hold point samples (unmeasured_motion_dt
+#: = 1 / LOW_IMU_RATE_HZ) and the CLI says so (imu_rate_warning).
 LOW_IMU_RATE_HZ = 50.0
 
 
 def imu_rate_warning(t_imu: Any) -> str | None:
-    """A warning when the IMU times ``t_imu`` (N,) s run below :data:`LOW_IMU_RATE_HZ`.
+    """A note when the IMU times ``t_imu`` (N,) s run below :data:`LOW_IMU_RATE_HZ`.
 
-    The defaults model a >= 100 Hz IMU whose samples are means over their interval (as PX4
-    and ArduPilot log them). Point samples at a low rate (ROS/mavros ``imu/data_raw`` at
-    10 Hz, say) leave an integration error of about ``sigma_d dt / sqrt(3)`` per step, with
-    sigma_d the sample-to-sample change of the rate or specific force, far above the
-    default densities: the filters then trust the gyro too much and can diverge. The rule
-    of thumb in docs/estimators.md ("Low-rate IMUs") gives the densities to set instead."""
+    Such a stream is telemetry (MAVLink RAW_IMU/SCALED_IMU, ROS/mavros ``imu/data_raw``):
+    point samples, each held by the prediction over motion it did not measure. The filters
+    on the compiled core add that motion's noise by themselves, from the sample-to-sample
+    changes (``unmeasured_motion_dt``, docs/estimators.md "Low-rate IMUs"); the note says
+    so, and that the attitude will be coarser than from a >= 100 Hz IMU."""
     import numpy as np
 
     t = np.asarray(t_imu, dtype=np.float64)
@@ -407,16 +407,11 @@ def imu_rate_warning(t_imu: Any) -> str | None:
     rate = 1.0 / float(np.median(np.diff(t)))
     if rate >= LOW_IMU_RATE_HZ:
         return None
-    dt = 1.0 / rate
-    # sigma_d: 1 rad/s^2 of angular acceleration and 10 m/s^3 of jerk, times dt; the error
-    # sigma_d dt / sqrt(3) per step as a density: divided by sqrt(dt)
-    gyro = 1.0 * dt * dt / math.sqrt(3.0) / math.sqrt(dt)
-    accel = 10.0 * dt * dt / math.sqrt(3.0) / math.sqrt(dt)
     return (
-        f"the IMU runs at {rate:.3g} Hz; the default noise assumes >= 100 Hz interval means and is far too "
-        f"small for point samples this sparse (the filters may diverge): for a manoeuvring vehicle set about "
-        f"gyro_noise={gyro:.2g} and accel_noise={accel:.2g}, i.e. the filter spec 'NAME:gyro_noise={gyro:.2g}:"
-        f"accel_noise={accel:.2g}' (docs/estimators.md, 'Low-rate IMUs')"
+        f"the IMU runs at {rate:.3g} Hz: its samples are taken as point samples held over motion they did not "
+        f"measure, and mekf, mekf-air, ins-wind, ekf7 and ekf10 add that motion's noise from the sample-to-sample "
+        f"changes (unmeasured_motion_dt; do not also raise gyro_noise and accel_noise for the rate); expect a "
+        f"coarser attitude than from a >= 100 Hz IMU (docs/estimators.md, 'Low-rate IMUs')"
     )
 
 
