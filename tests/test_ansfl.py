@@ -17,6 +17,7 @@ from conftest import require_data
 from synthetic_logs import ANSFL_GT_HEADER, write_ansfl_dir
 from windahrs.flight import Flight
 from windahrs.io import LogFormatError, detect_format, read_ansfl, read_flight
+from windahrs.io.ansfl import ANSFL_GNSS_TIMING_SIGMA
 from windahrs.rotation import quat_angle
 from windahrs.sim.scenario import make_scenario, simulate
 
@@ -45,6 +46,7 @@ def test_round_trip_units_frames_and_reference(tmp_path: Path, sim: Flight) -> N
     assert float(np.max(quat_angle(ref.q_nb, sim.truth.q_nb[::step]))) < 1e-7
     # GNSS: central differences of the NED positions at 10 Hz against the true velocity
     assert f.gnss is not None and f.meta["gnss.derived_from"] == "position"
+    assert f.meta["gnss.timing_sigma_s"] == ANSFL_GNSS_TIMING_SIGMA  # DJI's clock, not the DOT's
     err = np.abs(f.gnss.v_n - sim.truth.v_n[::step])
     assert float(np.max(err[1:-1])) < 0.05, "central differences of a smooth path"
     assert f.mag is None and f.truth is None
@@ -59,6 +61,7 @@ def test_imu_choice_and_gnss_option(tmp_path: Path, sim: Flight) -> None:
     assert dx == pytest.approx({2: 1.0, 4: 3.0}, abs=1e-6)
     flight = read_ansfl(d, imu=2, gnss=False)
     assert flight.gnss is None and flight.meta["ansfl.imus"] == "2,4"
+    assert "gnss.timing_sigma_s" not in flight.meta
     with pytest.raises(LogFormatError, match=r"IMU_1\.csv: no such file \(IMU 1; this flight has: IMU_2\.csv, "
                                               r"IMU_4\.csv\)"):
         read_ansfl(d, imu=1)

@@ -4,6 +4,7 @@ bad input, parameters."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -376,3 +377,58 @@ def test_an_angle_of_attack_vane_alone_is_airspeed_and_synthetic_sideslip() -> N
         assert not np.array_equal(one.q_nb, both.q_nb), name  # the vanes do matter
     with pytest.raises(MissingSensorError, match=r"'paper'.*found air data with only one vane \(aoa\)"):
         make_estimator("paper").run(aoa_only)
+
+
+@pytest.mark.parametrize(("kind", "additive"), [("mekf", False), ("ins-wind", False), ("mekf", True)])
+def test_held_sample_noise_is_the_measured_change_over_the_step(kind: str, additive: bool) -> None:
+    """A step longer than unmeasured_motion_dt adds (dw dt)^2/3 per body axis to the attitude
+    (1/4 Xi diag Xi^T on the additive quaternion) and C diag((df dt)^2/3) C^T to the INS
+    velocity; a shorter step adds nothing."""
+    from windahrs.core.kernel import layout_for, make_state
+    from windahrs.core.predict import add_held_sample_noise
+
+    params = EskfParams()
+    caps = np.full(K.N_SENSORS, 4, dtype=np.int64)
+    st = make_state(kind, additive, params, SITE, None, frozenset({"imu"}), caps)  # type: ignore[arg-type]
+    rng = np.random.default_rng(4)
+    q = quat_exp(rng.normal(size=3))
+    dw, df = np.array([0.3, -0.1, 0.05]), np.array([2.0, 0.5, -1.0])
+    st.x[K.X_Q : K.X_Q + 4] = q
+    st.x[K.X_DW : K.X_DW + 3], st.x[K.X_DF : K.X_DF + 3] = dw, df
+    add_held_sample_noise(st.cfg, st.prm, st.x, st.P, st.work, 0.019)  # 53 Hz: not held
+    assert not st.P.any()
+    dt = 0.1
+    add_held_sample_noise(st.cfg, st.prm, st.x, st.P, st.work, dt)
+    d_att, d_v = (dw * dt) ** 2 / 3.0, (df * dt) ** 2 / 3.0
+    if additive:
+        X = Xi(q)
+        np.testing.assert_allclose(st.P[:4, :4], 0.25 * X @ np.diag(d_att) @ X.T, rtol=1e-12, atol=1e-18)
+        assert not st.P[4:].any()
+        return
+    np.testing.assert_allclose(st.P[:3, :3], np.diag(d_att), rtol=1e-12)
+    L = layout_for(kind, params)  # type: ignore[arg-type]
+    if L.has("v"):
+        from scipy.spatial.transform import Rotation
+
+        C = Rotation.from_quat(q, scalar_first=True).as_matrix()
+        v = L.sl("v")
+        np.testing.assert_allclose(st.P[v, v], C @ np.diag(d_v) @ C.T, rtol=1e-12, atol=1e-18)
+        np.testing.assert_array_equal(st.P, st.P.T)
+    assert np.count_nonzero(st.P) == 3 + (9 if L.has("v") else 0)
+
+
+def test_flight_declared_gnss_timing_is_used_unless_set() -> None:
+    from windahrs.filters.params import flight_params
+
+    meta = {"gnss.timing_sigma_s": 0.5}
+    assert flight_params(EskfParams(), meta).gnss_timing_sigma == 0.5
+    assert flight_params(EskfParams(gnss_timing_sigma=0.05), meta).gnss_timing_sigma == 0.05  # explicit wins
+    assert flight_params(EskfParams(), meta, frozenset({"gyro_noise"})) == EskfParams()  # not used: untouched
+    with pytest.raises(ValueError, match=r"meta\['gnss.timing_sigma_s'\]: expected a finite number >= 0"):
+        flight_params(EskfParams(), {"gnss.timing_sigma_s": "late"})
+    flight = simulate(make_scenario("fixedwing", wind=5.0, duration=6.0), np.random.default_rng(2))
+    est = make_estimator("ins-wind").run(flight)
+    declared = make_estimator("ins-wind").run(dataclasses.replace(flight, meta={**flight.meta, **meta}))
+    assert "gnss_timing_sigma=0.5" in declared.params and "gnss_timing_sigma=0.0" in est.params
+    # a larger GNSS variance while the vehicle accelerates: the velocity follows GNSS less
+    assert not np.allclose(declared.v_n, est.v_n)

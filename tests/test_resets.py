@@ -1,5 +1,5 @@
-"""Resets of a filter that has lost gravity or heading (windahrs.core.reset): logged in
-Estimate.resets, warned about, and the attitude recovered."""
+"""Resets of a filter that has lost gravity, heading or its GNSS velocity (windahrs.core.reset):
+logged in Estimate.resets, warned about, and the attitude recovered."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from conftest import require_data
 from windahrs.estimate import EstimatorWarning, load_estimate, save_estimate
 from windahrs.filters.base import InitialState
 from windahrs.filters.checks import tilt_alerts
+from windahrs.flight import ImuStream
 from windahrs.metrics import attitude_errors
 from windahrs.rotation import quat_mul
 
@@ -67,3 +68,50 @@ def test_a_real_flight_that_diverges_is_flagged_and_warned() -> None:
         est = wa.estimator("mekf").run(flight)
     assert len(est.alerts["tilt"]) >= 1
     assert est.alerts["tilt"][-1, 1] > est.t[-1] - 5.0  # up to the end of the flight
+
+
+def _with_gyro_spike(flight: wa.Flight, t: float, rate: float) -> wa.Flight:
+    """The flight with one IMU sample (the first at or after t s) reading ``rate`` rad/s on x."""
+    k = int(np.searchsorted(flight.imu.t, t))
+    w = flight.imu.w_b.copy()
+    w[k] = [rate, 0.0, 0.0]
+    return dataclasses.replace(flight, imu=ImuStream(t=flight.imu.t, w_b=w, f_b=flight.imu.f_b))
+
+
+@pytest.fixture(scope="module")
+def spiked() -> wa.Flight:
+    """A fixed wing in 8 m/s wind with one 40 rad/s gyro sample at 15 s (issue 13: the INS
+    tilts by about 11 deg and its gate then rejects every GNSS sample)."""
+    return _with_gyro_spike(wa.simulate("fixedwing", seed=5, wind=8.0, duration=45.0), 15.0, 40.0)
+
+
+def test_gnss_lockout_after_a_gyro_spike_is_reset_and_recovers(spiked: wa.Flight) -> None:
+    locked = wa.estimator("ins-wind:reset_timeout=0").run(spiked)
+    gnss = locked.innovations["gnss"]
+    err = np.degrees(attitude_errors(locked, spiked).total)
+    assert gnss.accepted[gnss.t > 15.0].mean() < 0.05  # the lock-out, kept without a timeout
+    assert np.sqrt(np.mean(err[locked.t > 30.0] ** 2)) > 10.0
+    with pytest.warns(
+        EstimatorWarning,
+        match=r"ins-wind: gnss rejected for 5\.\d s; at t = 2\d\.\d+ s velocity "
+        r"reset to it by \d+\.\d m/s; attitude levelled, biases and wind "
+        r"restarted, magnetometer no longer fused",
+    ):
+        est = wa.estimator("ins-wind").run(spiked)
+    ((t_reset, dv, out_for),) = est.resets["gnss"]
+    assert 20.0 < t_reset < 21.0 and dv > 1.0 and 5.0 < out_for < 5.5
+    assert est.innovations["mag"].t[-1] <= t_reset  # PX4's mag_fault: not fused after the reset
+    gnss = est.innovations["gnss"]
+    assert gnss.accepted[gnss.t > t_reset].mean() > 0.95
+    err = np.degrees(attitude_errors(est, spiked).total)
+    before = np.sqrt(np.mean(err[(est.t > 5.0) & (est.t < 15.0)] ** 2))
+    after = np.sqrt(np.mean(err[est.t > 35.0] ** 2))
+    assert after < 1.0 and after < 4.0 * max(before, 0.25), (before, after)
+    assert wa.estimator("ins-wind").run(dataclasses.replace(spiked, imu=_clean_imu(spiked))).resets == {}
+
+
+def _clean_imu(flight: wa.Flight) -> ImuStream:
+    w = flight.imu.w_b.copy()
+    k = int(np.argmax(np.abs(w[:, 0])))
+    w[k] = 0.5 * (w[k - 1] + w[k + 1])
+    return ImuStream(t=flight.imu.t, w_b=w, f_b=flight.imu.f_b)

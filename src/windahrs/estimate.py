@@ -142,6 +142,10 @@ class Estimate:
                     what = f"attitude levelled to it by {np.degrees(size):.1f} deg, gyro bias reset"
                 elif sensor == "mag":
                     what = f"heading turned to it by {np.degrees(size):.1f} deg"
+                elif sensor == "gnss":
+                    what = f"velocity reset to it by {size:.1f} m/s; attitude levelled, biases and wind restarted"
+                    if "mag" in self.innovations:
+                        what += ", magnetometer no longer fused"
                 else:
                     what = f"state reset to it by {size:.3g}"
                 out.append(f"{self.filter}: {sensor} rejected for {out_for:.1f} s; at t = {t:.2f} s {what}")

@@ -2,48 +2,115 @@
 R = gnss_sigma^2 I, gated at gate_gnss sigmas ([ins-wind]). Every filter remembers the last
 GNSS velocity and its difference (the accelerometer compensation of :mod:`windahrs.aid.gravity`
 and the velocity input of [mekf-air]). Innovation key: ``"gnss"`` (3 rows).
+
+Reset: GNSS velocity kept out by its gate for ``reset_timeout`` means the INS has lost its
+velocity (and with it, usually, its attitude: one 40 rad/s gyro spike tilts it by 10 deg and
+the gate then rejects every sample that would fix it, issue 13). The velocity is reset to the
+sample, as PX4 EKF2 (``resetVelocityToGnss`` on its GNSS fusion timeout) and ArduPilot EKF3
+(``ResetVelocity`` on ``velTimeout``) do. Those filters reset the velocity alone; here the
+states the lost velocity has left unguarded are reset too, because with the gate closed the
+aids left (air data, the magnetometer) have been steering them unopposed, and a velocity
+reset alone is rejected again 5 s later (measured on the ALFA flight: a reset every 5 s):
+
+* the attitude's spread returns to init_att (so that the next samples can correct a tilt the
+  rejected ones could not), and a tilt more than 45 deg from the GNSS-compensated specific
+  force is levelled to it (the gravity aid's rule: beyond what a linear update can undo);
+* the gyro and accelerometer biases, learnt while the state was lost, restart from zero with
+  their initial spreads (the gravity reset's rule; PX4 reopens the gyro bias after its
+  emergency yaw reset); the magnetometer bias's spread is reopened;
+* the wind, fitted to a wrong velocity, restarts from the next air sample as at
+  initialisation (PX4 EKF2 likewise resets the wind from the airspeed when it restarts
+  airspeed fusion);
+* the magnetometer is no longer fused for the rest of the run: PX4 EKF2 declares it faulty
+  (``mag_fault``) after its GNSS-triggered emergency yaw reset, "otherwise its fusion could
+  drag the yaw around and cause another navigation failure". With GNSS velocity and air data
+  the heading stays observable through the vehicle's accelerations (the turns).
+
+Logged in the ``reset`` log (size: the velocity jump, m/s) and warned about.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
 
 from windahrs.core.kalman import (
     _fuse,
+    _lowpass_gain,
 )
 from windahrs.core.layout import (
     _JIT,
+    C_IBA,
+    C_IBM,
     C_IV,
+    C_IW,
     C_KIND,
     INN_GNSS,
     KIND_INS,
     R_GATE2_GNSS,
+    R_GNSS_TAU,
     R_GNSS_VAR,
+    R_GRAV,
+    R_P0_BA,
+    R_P0_BM,
+    R_P0_W,
+    R_P0_WV,
     S_AGNSS,
+    S_AINS,
+    S_FINS,
+    S_MAG_FAULT,
     S_VGNSS,
+    S_WPEND,
     W_H,
     W_NU,
     W_R,
     X_AGNSS,
+    X_AINS,
+    X_BA,
+    X_FINS,
     X_TGNSS,
     X_V,
     X_VGNSS,
 )
+from windahrs.core.quat import _dcm9, _qexp
+from windahrs.core.reset import (
+    accepted_at,
+    level_to,
+    log_reset,
+    reopen,
+    reset_gyro_bias,
+    set_attitude_cov,
+    timed_out,
+)
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
-PARAMS = ("gnss_sigma", "gate_gnss")
+PARAMS = ("gnss_sigma", "gnss_timing_sigma", "gate_gnss", "reset_timeout")
+
+
+#: Time constant, s, of the means that level the attitude at a GNSS reset: the specific force
+#: in an almost inertial frame (rotated into each new body frame by the gyro) and the GNSS
+#: acceleration in NED. Over a few seconds rotor vibration and manoeuvres average out of
+#: both alike, while one sample of a multirotor's accelerometer is off by several m/s^2
+#: (VQF's tau_acc, 3 s, the same low-pass of the specific force; also [mekf]'s accel_lowpass).
+LEVEL_TAU = 3.0
 
 
 @njit(inline="always", **_JIT)
 def remember_gnss(x, flags, t, row):
     """Every filter keeps the last GNSS velocity (row[:3] m/s NED at t s) and its
-    difference quotient, the acceleration used to compensate the accelerometer."""
+    difference quotient, the acceleration used to compensate the accelerometer (and its
+    mean over LEVEL_TAU, the INS reset's levelling)."""
     if flags[S_VGNSS] == 1 and t > x[X_TGNSS]:
         dt = t - x[X_TGNSS]
         for a in range(3):
             x[X_AGNSS + a] = (row[a] - x[X_VGNSS + a]) / dt
         flags[S_AGNSS] = 1
+        k = 1.0 if flags[S_AINS] == 0 else _lowpass_gain(dt, LEVEL_TAU)
+        for a in range(3):
+            x[X_AINS + a] += k * (x[X_AGNSS + a] - x[X_AINS + a])
+        flags[S_AINS] = 1
     for a in range(3):
         x[X_VGNSS + a] = row[a]
     x[X_TGNSS] = t
@@ -57,12 +124,72 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     if cfg[C_KIND] == KIND_INS:
         iv = cfg[C_IV]
         H, R = work[W_H : W_H + 3], work[W_R : W_R + 3]
+        tau = prm[R_GNSS_TAU] if flags[S_AGNSS] == 1 else 0.0
         for k in range(3):
             H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0
             for a in range(3):
                 H[k, iv + a] = 1.0 if k == a else 0.0
-                R[k, a] = prm[R_GNSS_VAR] if k == a else 0.0
+                R[k, a] = 0.0
+            R[k, k] = prm[R_GNSS_VAR] + (tau * x[X_AGNSS + k]) ** 2  # noise, and timing: late by tau, off by a tau
             sup[0, k] = iv + k
             work[W_NU, k] = row[k] - x[X_V + k]
         sensor, m, ns = np.int64(INN_GNSS), np.int64(3), np.int64(3)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_GNSS])
+        if timed_out(prm, x, sensor, t):
+            reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row)
+        elif _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_GNSS]):
+            accepted_at(x, sensor, t)
+
+
+@njit(inline="always", **_JIT)
+def remember_specific_force(x, flags, wx, wy, wz, fx, fy, fz, dt):
+    """The INS's mean specific force over LEVEL_TAU in the current body frame: the mean is
+    rotated into the new body frame by the gyro increment (w, bias-corrected, rad/s, over
+    dt s), then blended with f (m/s^2)."""
+    if flags[S_FINS] == 0:
+        x[X_FINS], x[X_FINS + 1], x[X_FINS + 2] = fx, fy, fz
+        flags[S_FINS] = 1
+        return
+    e = _qexp(wx * dt, wy * dt, wz * dt)
+    c = _dcm9(e[0], e[1], e[2], e[3])
+    v0, v1, v2 = x[X_FINS], x[X_FINS + 1], x[X_FINS + 2]
+    k = _lowpass_gain(dt, LEVEL_TAU)
+    x[X_FINS] = c[0] * v0 + c[3] * v1 + c[6] * v2 + k * (fx - (c[0] * v0 + c[3] * v1 + c[6] * v2))
+    x[X_FINS + 1] = c[1] * v0 + c[4] * v1 + c[7] * v2 + k * (fy - (c[1] * v0 + c[4] * v1 + c[7] * v2))
+    x[X_FINS + 2] = c[2] * v0 + c[5] * v1 + c[8] * v2 + k * (fz - (c[2] * v0 + c[5] * v1 + c[8] * v2))
+
+
+@njit(**_JIT)
+def _level(prm, x):
+    """Level the attitude so that the mean specific force matches the mean GNSS
+    acceleration, ``f_b = C_bn (a_n - g_n)`` (both over LEVEL_TAU)."""
+    g = prm[R_GRAV]
+    level_to(x, -x[X_FINS], -x[X_FINS + 1], -x[X_FINS + 2], -x[X_AINS], -x[X_AINS + 1], g - x[X_AINS + 2])
+
+
+@njit(**_JIT)
+def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
+    """GNSS velocity kept out by its gate for reset_timeout (module docstring): velocity to
+    the sample row[:3] m/s NED at t s (spread gnss_sigma), the attitude's spread reopened (a
+    tilt beyond 45 deg levelled), the biases restarted, the wind restarted from the next air
+    sample, the magnetometer no longer fused; logged."""
+    iv = cfg[C_IV]
+    reopen(cfg, P, iv, prm[R_GNSS_VAR], prm[R_GNSS_VAR])
+    dv2 = 0.0
+    for a in range(3):
+        dv2 += (row[a] - x[X_V + a]) ** 2
+        x[X_V + a] = row[a]
+    if flags[S_FINS] == 1 and flags[S_AINS] == 1:
+        _level(prm, x)
+    set_attitude_cov(cfg, prm, x, P, work)
+    reset_gyro_bias(cfg, prm, x, P)
+    if cfg[C_IBA] >= 0:
+        for a in range(3):
+            x[X_BA + a] = 0.0
+        reopen(cfg, P, cfg[C_IBA], prm[R_P0_BA], prm[R_P0_BA])
+    if cfg[C_IBM] >= 0:
+        reopen(cfg, P, cfg[C_IBM], prm[R_P0_BM], prm[R_P0_BM])
+    flags[S_MAG_FAULT] = 1
+    if cfg[C_IW] >= 0:
+        reopen(cfg, P, cfg[C_IW], prm[R_P0_W], prm[R_P0_WV])
+        flags[S_WPEND] = 1  # the wind from the next air sample, as at initialisation
+    log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_GNSS), t, math.sqrt(dv2))

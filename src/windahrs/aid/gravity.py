@@ -50,8 +50,8 @@ from windahrs.core.layout import (
     X_AVAR,
     X_BA,
     X_BG,
+    X_DF,
     X_FBAR,
-    X_FPREV,
     X_Q,
     X_TOK,
     X_VAIR,
@@ -94,15 +94,13 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gravity, ``h = C_bn (-g_n) (+ compensation) (+ b_a)``, ``H_att = [h_g]x``, R = accel_sigma^2 I,
     gated on ``| |f| - g | > accel_norm_gate g`` and on the innovation (gate_accel)."""
     fx, fy, fz = row[3], row[4], row[5]
-    if cfg[C_AVAR] == 1:
-        # the accelerometer's noise on line, from the differences of consecutive samples:
-        # (f_k - f_k-1) / sqrt(2) has the variance of the sample-to-sample noise (vibration,
-        # aliased rotor harmonics), while the smooth motion of the vehicle barely enters it
-        # at IMU rates
-        if dt > 0:
-            d0, d1, d2 = fx - x[X_FPREV], fy - x[X_FPREV + 1], fz - x[X_FPREV + 2]
-            x[X_AVAR] += _lowpass_gain(dt, prm[R_ACC_LP]) * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
-        x[X_FPREV], x[X_FPREV + 1], x[X_FPREV + 2] = fx, fy, fz
+    if cfg[C_AVAR] == 1 and dt > 0:
+        # the accelerometer's noise on line, from the differences of consecutive samples
+        # (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
+        # sample-to-sample noise (vibration, aliased rotor harmonics), while the smooth
+        # motion of the vehicle barely enters it at IMU rates
+        d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
+        x[X_AVAR] += _lowpass_gain(dt, prm[R_ACC_LP]) * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
     # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
     g = prm[R_GRAV]

@@ -46,6 +46,7 @@ from windahrs.core.layout import (
     R_MAG_SIGMA,
     R_MAG_VAR,
     R_SITE_MAG,
+    S_MAG_FAULT,
     S_MAGN,
     S_MBAR,
     W_H,
@@ -151,7 +152,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite) of an initialised filter: row[:3] tesla, body, at t s."""
     mx, my, mz = row[0], row[1], row[2]
     mode = cfg[C_MAG]
-    if mode == MAG_OFF:
+    if mode == MAG_OFF or flags[S_MAG_FAULT] == 1:  # (declared faulty by a GNSS reset, aid.gnss_vel)
         return
     rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
     nu = work[W_NU]

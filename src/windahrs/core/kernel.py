@@ -30,6 +30,7 @@ from windahrs.aid.drag import (
 from windahrs.aid.gnss_vel import (
     fuse_gnss,
     remember_gnss,
+    remember_specific_force,
 )
 from windahrs.aid.gravity import (
     fuse_gravity,
@@ -110,8 +111,10 @@ from windahrs.core.layout import (
     R_GATE2_DRAG,
     R_GATE2_GNSS,
     R_GATE2_MAG,
+    R_GNSS_TAU,
     R_GNSS_VAR,
     R_GRAV,
+    R_HOLD_DT,
     R_INI_BG,
     R_INI_Q,
     R_INI_V,
@@ -158,6 +161,8 @@ from windahrs.core.layout import (
     X_BA,
     X_BG,
     X_BM,
+    X_DF,
+    X_DW,
     X_FBAR,
     X_FLAST,
     X_FMAG,
@@ -171,11 +176,13 @@ from windahrs.core.layout import (
     X_TWIN0,
     X_V,
     X_W,
+    X_WLAST,
     KernelState,
 )
 from windahrs.core.predict import (
     _predict_add,
     _predict_es,
+    add_held_sample_noise,
 )
 from windahrs.core.quat import (
     _dcm9,
@@ -197,7 +204,7 @@ from windahrs.filters.base import (
     merge_events,
 )
 from windahrs.filters.checks import checked
-from windahrs.filters.params import EskfParams
+from windahrs.filters.params import EskfParams, flight_params
 from windahrs.flight import Flight, Site
 from windahrs.models.error_state import Layout
 
@@ -313,7 +320,13 @@ def imu_clock(cfg, prm, x, flags, P, work, t, row):
     """Every filter's first step at an IMU sample row = [w_b, f_b] at t s: keep the specific
     force, initialise when it can; returns the step dt s since the last IMU sample, or -1
     while not initialised (nothing else to do)."""
-    x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2] = row[3], row[4], row[5]
+    if flags[S_FLAST] == 1:  # the sample-to-sample changes (the held-sample noise of the prediction)
+        for a in range(3):
+            x[X_DW + a] = row[a] - x[X_WLAST + a]
+            x[X_DF + a] = row[3 + a] - x[X_FLAST + a]
+    for a in range(3):
+        x[X_WLAST + a] = row[a]
+        x[X_FLAST + a] = row[3 + a]
     flags[S_FLAST] = 1
     if flags[S_INIT] == 0:
         _window_add(x, flags, t, row)
@@ -354,9 +367,13 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
             _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
+        add_held_sample_noise(cfg, prm, x, P, work, dt)
     if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
-    elif cfg[C_DRAG] == 1:  # ... and may also read the drag in it
+        return
+    wx, wy, wz = row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2]
+    remember_specific_force(x, flags, wx, wy, wz, fx, fy, fz, dt)
+    if cfg[C_DRAG] == 1:  # ... and may also read the drag in it
         fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
@@ -672,6 +689,8 @@ def make_state(
     prm[R_GATE2_DRAG] = p.gate_drag**2
     prm[R_INI_WIN] = p.init_window
     prm[R_RESET_TOUT] = p.reset_timeout
+    prm[R_HOLD_DT] = p.unmeasured_motion_dt
+    prm[R_GNSS_TAU] = p.gnss_timing_sigma
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -819,14 +838,16 @@ class CompiledEstimator(Estimator):
         return frozenset(name for part in cls.parts for name in part)
 
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
-        """Estimate the whole flight in one compiled loop."""
+        """Estimate the whole flight in one compiled loop (with the parameters the flight
+        itself declares, :func:`~windahrs.filters.params.flight_params`)."""
         self.check(flight)
+        params = flight_params(self.params, flight.meta, self.param_names())
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
         t_ev, kinds, vals = merge_events(flight, has)
         counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
         caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
-        st = make_state(self.kind, self.additive, self.params, flight.site, initial, has, caps)
-        L = layout_for(self.kind, self.params, additive=self.additive)
+        st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
+        L = layout_for(self.kind, params, additive=self.additive)
         N, d = len(flight.imu.t), L.dim
         q, bg = np.empty((N, 4)), np.empty((N, 3))
         v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
@@ -843,9 +864,9 @@ class CompiledEstimator(Estimator):
             wind_n=w if L.has("wind") else None,
             cov=cov,
             state_labels=L.labels(),
-            innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
+            innovations=_innovations(st, effective_mag_mode(params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
-            params=self.params_text(),
+            params=repr(params),
             resets=_resets(st),
         ), flight)
 

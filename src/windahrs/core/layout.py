@@ -134,7 +134,9 @@ R_GATE2_DRAG = 51
 R_P0_WV = 52  # initial vertical-wind variance (0: held at zero)
 R_INI_WIN = 53  # init_window, s: the specific force averaged before the attitude is initialised
 R_RESET_TOUT = 54  # reset_timeout, s (0: never reset)
-N_PRM = 55
+R_HOLD_DT = 55  # unmeasured_motion_dt, s: IMU steps longer than this add the held-sample noise
+R_GNSS_TAU = 56  # gnss_timing_sigma, s
+N_PRM = 57
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -158,10 +160,14 @@ X_TMBAR = 49  # time of the last magnetometer sample in it
 X_FWIN = 50  # (3,) mean specific force of the initialisation window, current body frame
 X_NWIN = 53  # samples in it
 X_TWIN0 = 54  # time of its first sample
-X_TOK = 55  # (N_SENSORS,) time each aid source last agreed with the state (NaN: not yet initialised)
+X_WLAST = 55  # (3,) last angular rate sample
+X_DW = 58  # (3,) change of the angular rate sample since the previous one, rad/s
+X_DF = 61  # (3,) change of the specific force sample since the previous one, m/s^2
+X_FINS = 64  # (3,) low-passed specific force in the current body frame (the GNSS reset's levelling)
+X_AINS = 67  # (3,) low-passed GNSS acceleration, NED, over the same time constant
+X_TOK = 70  # (N_SENSORS,) time each aid source last agreed with the state (NaN: not yet initialised)
 X_AVAR = X_TOK + N_SENSORS  # the accelerometer's on-line noise variance, (m/s^2)^2 per axis
-X_FPREV = X_AVAR + 1  # (3,) the previous specific force sample, for it
-N_X = X_FPREV + 3
+N_X = X_AVAR + 1
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -177,8 +183,11 @@ S_SEQ = 9  # sensors that have logged so far
 S_FBAR = 10  # the low-passed specific force is set
 S_MBAR = 11  # the low-passed magnetic field is set
 S_WIN = 12  # the initialisation window has a sample
-K_SKIP = 13  # (4,) NaN samples skipped: imu, mag, gnss, air
-L_CNT = 17  # (N_SENSORS,) log rows used per sensor
+S_MAG_FAULT = 13  # the magnetometer is no longer fused (declared faulty by a GNSS reset)
+S_FINS = 14  # X_FINS is set
+S_AINS = 15  # X_AINS is set
+K_SKIP = 16  # (4,) NaN samples skipped: imu, mag, gnss, air
+L_CNT = 20  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 

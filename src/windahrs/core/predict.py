@@ -17,6 +17,7 @@ from numba import njit
 from windahrs.core.layout import (
     _JIT,
     _JIT_FMA,
+    C_ADD,
     C_IBA,
     C_IBG,
     C_IBM,
@@ -24,6 +25,7 @@ from windahrs.core.layout import (
     C_IW,
     C_N,
     R_GRAV,
+    R_HOLD_DT,
     R_SA2,
     R_SB2,
     R_SBA2,
@@ -38,6 +40,8 @@ from windahrs.core.layout import (
     W_X,
     X_BA,
     X_BG,
+    X_DF,
+    X_DW,
     X_Q,
     X_V,
 )
@@ -51,9 +55,11 @@ from windahrs.core.quat import (
 )
 
 #: The parameters of the process models (fields of :class:`windahrs.filters.params.EskfParams`):
-#: attitude and gyro bias (every filter), the rate-proportional gyro noise (error-state only),
-#: the INS (velocity from the accelerometer, its bias), the wind states.
+#: attitude and gyro bias (every filter), the held-sample noise of long IMU steps (the EKFs on
+#: this core), the rate-proportional gyro noise (error-state only), the INS (velocity from the
+#: accelerometer, its bias), the wind states.
 ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_bias", "init_window")
+HELD_SAMPLE_PARAMS = ("unmeasured_motion_dt",)
 GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
 INS_PARAMS = ("accel_noise", "accel_bias_noise", "init_accel_bias", "init_v")
 WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")
@@ -349,3 +355,50 @@ def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
         P[iw + 1, iw + 1] += prm[R_WH2] * dt
         P[iw + 2, iw + 2] += prm[R_WV2] * dt
     _normalise_add(cfg, x, P, work, qk[0], qk[1], qk[2], qk[3])
+
+
+@njit(inline="always", **_JIT)
+def held_sample_variance(change, dt):
+    """Variance of the integral over a step of dt s of a signal sampled at the step's end and
+    held, when the sample differs from the previous one by ``change``: the change happened at
+    an unmeasured instant within the step, uniformly distributed, so the held sample is wrong
+    by ``change`` over a fraction u ~ U(0, 1) of the step: ``E[(change u dt)^2] =
+    (change dt)^2 / 3``."""
+    return (change * dt) ** 2 / 3.0
+
+
+@njit(**_JIT)
+def add_held_sample_noise(cfg, prm, x, P, work, dt):
+    """After the prediction over a step of dt s longer than unmeasured_motion_dt: the noise
+    of holding a point sample over motion it did not measure (:func:`held_sample_variance`),
+    per body axis ``(dw dt)^2 / 3`` on the attitude and ``(df dt)^2 / 3`` on the INS velocity
+    (rotated to NED), with dw, df the changes of the gyro and accelerometer samples since the
+    previous ones (x[X_DW], x[X_DF]). Additive form: ``1/4 Xi(q) diag(d) Xi(q)^T`` on the
+    quaternion (tangent to q, so adding it after the normalisation changes nothing else)."""
+    if not dt > prm[R_HOLD_DT]:
+        return
+    d0 = held_sample_variance(x[X_DW], dt)
+    d1 = held_sample_variance(x[X_DW + 1], dt)
+    d2 = held_sample_variance(x[X_DW + 2], dt)
+    if cfg[C_ADD] == 1:
+        Xi = work[W_M + 4 : W_M + 8]
+        _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
+        for r in range(4):
+            for c in range(4):
+                P[r, c] += 0.25 * (d0 * (Xi[r, 0] * Xi[c, 0]) + d1 * (Xi[r, 1] * Xi[c, 1]) + d2 * (Xi[r, 2] * Xi[c, 2]))
+        return
+    P[0, 0] += d0
+    P[1, 1] += d1
+    P[2, 2] += d2
+    iv = cfg[C_IV]
+    if iv >= 0:
+        C = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        d0 = held_sample_variance(x[X_DF], dt)
+        d1 = held_sample_variance(x[X_DF + 1], dt)
+        d2 = held_sample_variance(x[X_DF + 2], dt)
+        for r in range(3):
+            for c in range(r, 3):  # C diag(d) C^T, mirrored (P stays exactly symmetric)
+                v = C[3 * r] * d0 * C[3 * c] + C[3 * r + 1] * d1 * C[3 * c + 1] + C[3 * r + 2] * d2 * C[3 * c + 2]
+                P[iv + r, iv + c] += v
+                if c != r:
+                    P[iv + c, iv + r] += v

@@ -73,6 +73,16 @@ def clear_rows(cfg, P, i0, k):
 
 
 @njit(**_JIT)
+def reopen(cfg, P, i0, var, var_last):
+    """The 3 error states from error-state index i0 made uncorrelated with spread var
+    (the third var_last: a vertical wind held at zero has 0); additive form: covariance
+    index i0 + 1."""
+    j0 = i0 + cfg[C_ADD]
+    clear_rows(cfg, P, j0, 3)
+    P[j0, j0], P[j0 + 1, j0 + 1], P[j0 + 2, j0 + 2] = var, var, var_last
+
+
+@njit(**_JIT)
 def set_attitude_cov(cfg, prm, x, P, work):
     """The attitude's spread to init_att^2 per axis, uncorrelated with the other states
     (additive form: on the quaternion, ``1/4 Xi var Xi^T``)."""

@@ -16,6 +16,10 @@ no GNSS, no air data        [mekf] with its field defaults; the magnetometer whe
                             (an IMU alone runs too: tilt, and a heading that drifts)
 ==========================  ===============================================================
 
+A GNSS stream the flight declares unsynchronised (``meta["gnss.timing_sigma_s"]`` above
+:data:`MAX_GNSS_TIMING_S`) counts as absent. After the run, an INS that fails the tilt check
+is replaced by the run without GNSS when that one fails it for less time (see :meth:`Auto.run`).
+
 Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
 subtracts ``(w - b_g) x V_air`` from the specific force, the centripetal acceleration of a
 turn at constant airspeed, and ``V_air`` is the air-data sample's own air-relative velocity
@@ -71,6 +75,16 @@ from windahrs.filters.params import EskfParams, changes_from_mapping, read_param
 from windahrs.flight import Flight, Site
 
 __all__ = ["Auto", "AutoChoice", "describe_choice", "usable_streams"]
+
+#: A GNSS stream whose time stamps the flight declares uncertain beyond this (s,
+#: ``Flight.meta["gnss.timing_sigma_s"]``, e.g. a velocity differentiated from positions
+#: logged on another device's clock, as the ANSFL reader declares) is left out: the INS takes
+#: its attitude from the GNSS accelerations, and a timing error tau turns an acceleration a
+#: into a velocity error tau a, more than the 0.2 m/s a receiver's velocity carries at 2 m/s^2
+#: once tau passes 0.1 s (PX4 and ArduPilot compensate their receiver's delay, EKF2_GPS_DELAY,
+#: to within tens of ms). Measured on the ANSFL flights: ins-wind 10.0 deg median tilt with
+#: the declared 0.5 s, mekf 6.5 deg.
+MAX_GNSS_TIMING_S = 0.1
 
 #: The estimators auto chooses from, by registry name.
 CANDIDATES: dict[str, type[CompiledEstimator]] = {"ins-wind": InsWind, "mekf": Mekf}
@@ -203,7 +217,13 @@ class Auto(Estimator):
         warnings are emitted."""
         self.check(flight)
         streams = usable_streams(flight)
-        choice = self.choose(streams)
+        timing = float(flight.meta.get("gnss.timing_sigma_s", 0.0) or 0.0)
+        unsynced = "gnss" in streams and timing > MAX_GNSS_TIMING_S
+        choice = self.choose(streams - {"gnss"} if unsynced else streams)
+        if unsynced:
+            choice = dataclasses.replace(
+                choice, reason=f"GNSS velocity stamped on another clock (timing uncertain by {timing:g} s, "
+                f"beyond {MAX_GNSS_TIMING_S:g} s): attitude without it")
         est, caught = _run_quietly(choice.estimator, flight, initial)
         if "gnss" in choice.sensors and _alert_seconds(est) > 0:
             other = self.choose(streams - {"gnss"})

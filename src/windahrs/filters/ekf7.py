@@ -34,7 +34,9 @@ class Ekf7(CompiledEstimator):
     uses = frozenset({"imu", "mag", "gnss", "air"})
     additive = True
     #: no rate-proportional gyro noise and no hard-iron states in the additive form
-    parts: ClassVar[tuple[tuple[str, ...], ...]] = (process.ATTITUDE_PARAMS, gravity.PARAMS, mag.PARAMS)
+    parts: ClassVar[tuple[tuple[str, ...], ...]] = (
+        process.ATTITUDE_PARAMS, process.HELD_SAMPLE_PARAMS, gravity.PARAMS, mag.PARAMS
+    )
 
 
 class Ekf10(Ekf7):

@@ -67,7 +67,12 @@ class Mekf(CompiledEstimator):
     uses = frozenset({"imu", "mag", "gnss", "air"})
     default_params = MEKF_FIELD
     parts: ClassVar[tuple[tuple[str, ...], ...]] = (
-        process.ATTITUDE_PARAMS, process.GYRO_SCALE_PARAMS, gravity.PARAMS, mag.PARAMS, mag.BIAS_PARAMS
+        process.ATTITUDE_PARAMS,
+        process.HELD_SAMPLE_PARAMS,
+        process.GYRO_SCALE_PARAMS,
+        gravity.PARAMS,
+        mag.PARAMS,
+        mag.BIAS_PARAMS,
     )
 
 
@@ -92,6 +97,7 @@ class InsWind(CompiledEstimator):
     default_params = EskfParams(init_mag_bias=1e-6)
     parts = (
         process.ATTITUDE_PARAMS,
+        process.HELD_SAMPLE_PARAMS,
         process.GYRO_SCALE_PARAMS,
         process.INS_PARAMS,
         process.WIND_PARAMS,

@@ -30,8 +30,8 @@ from typing import Any, Literal
 from windahrs.conventions import DEG, G0
 
 __all__ = [
-    "ARDUPILOT_MAP", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "changes_from_mapping", "imu_rate_warning",
-    "load_params", "matched_to", "read_param_file",
+    "ARDUPILOT_MAP", "FLIGHT_PARAMS", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "changes_from_mapping",
+    "flight_params", "imu_rate_warning", "load_params", "matched_to", "read_param_file",
 ]
 
 #: PX4 and ArduPilot filters use per-step noise at their prediction period; densities
@@ -105,6 +105,17 @@ class EskfParams:
     variance, default 2.5 (m/s^2)^2: rotor vibration); gate_drag; air_density kg/m^3
     (ISA sea level).
 
+    GNSS velocity ([ins-wind]): gnss_sigma m/s per axis; gnss_timing_sigma s, the uncertainty
+    of its time stamps against the IMU's: a velocity late or early by tau is off by the
+    vehicle's acceleration times tau, so ``(gnss_timing_sigma a_k)^2`` is added to R per axis,
+    with a the GNSS stream's own acceleration (its last velocity difference quotient; no
+    attitude needed, which a lost INS would get wrong). ArduPilot EKF3 adds the same term
+    with 0.05 s (``gpsNEVelVarAccScale``) for a receiver on the autopilot's clock; default 0
+    (the simulator's GNSS has no latency, and a receiver on the IMU's clock needs little). A
+    reader whose GNSS is logged on another device's clock declares its timing uncertainty in
+    ``Flight.meta["gnss.timing_sigma_s"]`` (:data:`FLIGHT_PARAMS`), used while this field is
+    left at 0 (the ANSFL reader: :data:`windahrs.io.ansfl.ANSFL_GNSS_TIMING_SIGMA`).
+
     Gates: a measurement is rejected when a component's innovation exceeds ``gate`` of its
     standard deviation (PX4's test ratio), per sensor.
 
@@ -128,8 +139,24 @@ class EskfParams:
     ``Estimate.resets`` and warned about. A gate that trusts a wrong state must not lock the
     filter out for good, and an EKF update cannot turn a filter that is upside down
     (default 5 s, PX4 EKF2_NOAID_TOUT, the longest EKF2 dead-reckons before it resets to
-    its aiding; 0: never). GNSS velocity has no such reset yet: one that reset the velocity
-    and the tilt was measured worse on the ALFA flight (10 Hz IMU).
+    its aiding; 0: never). GNSS velocity kept out as long resets the INS to it
+    (:mod:`windahrs.aid.gnss_vel`: velocity, attitude spread, biases, wind; the magnetometer
+    is then no longer fused, as PX4 EKF2 declares it faulty after its GNSS emergency reset).
+
+    Held samples. unmeasured_motion_dt s: an IMU step longer than this is taken to hold a
+    point sample over motion it did not measure, and adds the noise of that to the
+    prediction: per body axis ``(dw dt)^2 / 3`` on the attitude and ``(df dt)^2 / 3`` on the
+    INS velocity, with dw, df the changes of the gyro and accelerometer samples since the
+    previous ones (the change happened at an unmeasured instant of the step, uniformly
+    distributed; :func:`windahrs.core.predict.held_sample_variance`). It needs no assumed
+    angular acceleration or jerk: the flight's own samples give it, step by step, and it
+    vanishes for a vehicle at rest. Default 1/50 s: autopilot logs at 50 Hz or more carry
+    means over the interval (PX4 and ArduPilot integrate their IMUs at >= 1 kHz into delta
+    angles and velocities, and EKF2 predicts every 10 ms), which the densities above
+    model, while slower streams are telemetry point samples (MAVLink RAW_IMU/SCALED_IMU,
+    ROS/mavros ``imu/data_raw``, streamed at 50 Hz at most); a gap in a fast stream is
+    such a step too. 0: every step (point samples at any rate); a value above every step
+    (e.g. 1e9): never ([mekf], [mekf-air], [ins-wind], [ekf7], [ekf10]).
     """
 
     gyro_noise: float = 0.01 * DEG
@@ -152,6 +179,7 @@ class EskfParams:
     mag_norm_gate: float = 0.0
     mag_dip_gate: float = 0.0
     gnss_sigma: float = 0.2
+    gnss_timing_sigma: float = 0.0
     air_mode: Literal["auto", "vector", "airspeed", "off"] = "auto"
     tas_sigma: float = 0.5
     vane_sigma: float = 1.0 * DEG
@@ -178,6 +206,7 @@ class EskfParams:
     init_window: float = 0.0
     accel_noise_online: bool = False
     reset_timeout: float = 5.0
+    unmeasured_motion_dt: float = 1.0 / 50.0
 
     def __post_init__(self) -> None:
         choices = {
@@ -204,6 +233,32 @@ class EskfParams:
 
     def replace(self, **changes: Any) -> EskfParams:
         return dataclasses.replace(self, **changes)
+
+
+#: What a flight may declare about its own sensors (a ``Flight.meta`` key its reader sets)
+#: -> the field it sets when the estimator's parameters leave that field at its default:
+#: ``gnss.timing_sigma_s``, the uncertainty of the GNSS stream's time stamps against the
+#: IMU's, s (a reader of two devices logging on separate clocks knows the stamps disagree,
+#: not by how much).
+FLIGHT_PARAMS: dict[str, str] = {"gnss.timing_sigma_s": "gnss_timing_sigma"}
+
+
+def flight_params(params: EskfParams, meta: Mapping[str, Any], used: frozenset[str] | None = None) -> EskfParams:
+    """``params`` with the fields a flight's ``meta`` declares (:data:`FLIGHT_PARAMS`),
+    each where the parameters leave it at its default and (``used``) the estimator uses it;
+    a value set explicitly wins. ValueError naming the meta key for a bad value."""
+    changes: dict[str, Any] = {}
+    default = EskfParams()
+    for key, name in FLIGHT_PARAMS.items():
+        if key not in meta or (used is not None and name not in used):
+            continue
+        if getattr(params, name) != getattr(default, name):
+            continue
+        value = meta[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+            raise ValueError(f"flight meta[{key!r}]: expected a finite number >= 0, found {value!r}")
+        changes[name] = float(value)
+    return params.replace(**changes) if changes else params
 
 
 def _dens(dt: float) -> Callable[[float], float]:
@@ -341,19 +396,19 @@ def read_param_file(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
 
 
-#: Below this IMU rate (Hz) the default process noise is too small (see imu_rate_warning).
+#: Below this IMU rate (Hz) a stream is taken to hold point samples (unmeasured_motion_dt
+#: = 1 / LOW_IMU_RATE_HZ) and the CLI says so (imu_rate_warning).
 LOW_IMU_RATE_HZ = 50.0
 
 
 def imu_rate_warning(t_imu: Any) -> str | None:
-    """A warning when the IMU times ``t_imu`` (N,) s run below :data:`LOW_IMU_RATE_HZ`.
+    """A note when the IMU times ``t_imu`` (N,) s run below :data:`LOW_IMU_RATE_HZ`.
 
-    The defaults model a >= 100 Hz IMU whose samples are means over their interval (as PX4
-    and ArduPilot log them). Point samples at a low rate (ROS/mavros ``imu/data_raw`` at
-    10 Hz, say) leave an integration error of about ``sigma_d dt / sqrt(3)`` per step, with
-    sigma_d the sample-to-sample change of the rate or specific force, far above the
-    default densities: the filters then trust the gyro too much and can diverge. The rule
-    of thumb in docs/estimators.md ("Low-rate IMUs") gives the densities to set instead."""
+    Such a stream is telemetry (MAVLink RAW_IMU/SCALED_IMU, ROS/mavros ``imu/data_raw``):
+    point samples, each held by the prediction over motion it did not measure. The filters
+    on the compiled core add that motion's noise by themselves, from the sample-to-sample
+    changes (``unmeasured_motion_dt``, docs/estimators.md "Low-rate IMUs"); the note says
+    so, and that the attitude will be coarser than from a >= 100 Hz IMU."""
     import numpy as np
 
     t = np.asarray(t_imu, dtype=np.float64)
@@ -362,16 +417,11 @@ def imu_rate_warning(t_imu: Any) -> str | None:
     rate = 1.0 / float(np.median(np.diff(t)))
     if rate >= LOW_IMU_RATE_HZ:
         return None
-    dt = 1.0 / rate
-    # sigma_d: 1 rad/s^2 of angular acceleration and 10 m/s^3 of jerk, times dt; the error
-    # sigma_d dt / sqrt(3) per step as a density: divided by sqrt(dt)
-    gyro = 1.0 * dt * dt / math.sqrt(3.0) / math.sqrt(dt)
-    accel = 10.0 * dt * dt / math.sqrt(3.0) / math.sqrt(dt)
     return (
-        f"the IMU runs at {rate:.3g} Hz; the default noise assumes >= 100 Hz interval means and is far too "
-        f"small for point samples this sparse (the filters may diverge): for a manoeuvring vehicle set about "
-        f"gyro_noise={gyro:.2g} and accel_noise={accel:.2g}, i.e. the filter spec 'NAME:gyro_noise={gyro:.2g}:"
-        f"accel_noise={accel:.2g}' (docs/estimators.md, 'Low-rate IMUs')"
+        f"the IMU runs at {rate:.3g} Hz: its samples are taken as point samples held over motion they did not "
+        f"measure, and mekf, mekf-air, ins-wind, ekf7 and ekf10 add that motion's noise from the sample-to-sample "
+        f"changes (unmeasured_motion_dt; do not also raise gyro_noise and accel_noise for the rate); expect a "
+        f"coarser attitude than from a >= 100 Hz IMU (docs/estimators.md, 'Low-rate IMUs')"
     )
 
 
