@@ -184,8 +184,8 @@ def test_cli_compare_defaults_start_with_auto(
 
 
 class _LostIns(InsWind):
-    """[ins-wind] whose every estimate fails the tilt check from 5 s on (the mechanism under
-    test is auto's, not the check's)."""
+    """[ins-wind] whose every estimate fails the tilt check from 5 s on, 3/4 of the flight
+    (the mechanism under test is auto's, not the check's)."""
 
     def run(self, flight, *, initial=None):  # type: ignore[no-untyped-def]
         est = super().run(flight, initial=initial)

@@ -86,6 +86,11 @@ __all__ = ["Auto", "AutoChoice", "describe_choice", "usable_streams"]
 #: the declared 0.5 s, mekf 6.5 deg.
 MAX_GNSS_TIMING_S = 0.1
 
+#: An INS that fails the tilt check for more than this share of the flight is compared with
+#: the run without GNSS (:meth:`Auto.run`); a shorter, transient failure (a launch, a lock-out
+#: its GNSS reset ended) keeps the INS and its wind and velocity (ALFA: 10.7 s of 132 s).
+FALLBACK_SHARE = 0.25
+
 #: The estimators auto chooses from, by registry name.
 CANDIDATES: dict[str, type[CompiledEstimator]] = {"ins-wind": InsWind, "mekf": Mekf}
 _ORDER = ("imu", "mag", "gnss", "air")
@@ -211,10 +216,10 @@ class Auto(Estimator):
 
         Fallback: when the INS fails the tilt check of :mod:`windahrs.filters.checks` (its
         attitude does not see the mean specific force, less the GNSS acceleration, as
-        gravity), the flight is run again without GNSS ([mekf]) and the run that failed the
-        check for less time is kept, as ArduPilot's EKF3 switches to the lane with the
-        smaller error score; ``meta["auto_fallback"]`` says why. Only the kept run's
-        warnings are emitted."""
+        gravity) for more than :data:`FALLBACK_SHARE` of the flight, the flight is run
+        again without GNSS ([mekf]) and the run that failed the check for less time is
+        kept, as ArduPilot's EKF3 switches to the lane with the smaller error score;
+        ``meta["auto_fallback"]`` says why. Only the kept run's warnings are emitted."""
         self.check(flight)
         streams = usable_streams(flight)
         timing = float(flight.meta.get("gnss.timing_sigma_s", 0.0) or 0.0)
@@ -225,7 +230,8 @@ class Auto(Estimator):
                 choice, reason=f"GNSS velocity stamped on another clock (timing uncertain by {timing:g} s, "
                 f"beyond {MAX_GNSS_TIMING_S:g} s): attitude without it")
         est, caught = _run_quietly(choice.estimator, flight, initial)
-        if "gnss" in choice.sensors and _alert_seconds(est) > 0:
+        duration = float(flight.imu.t[-1] - flight.imu.t[0])
+        if "gnss" in choice.sensors and _alert_seconds(est) > FALLBACK_SHARE * duration:
             other = self.choose(streams - {"gnss"})
             est2, caught2 = _run_quietly(other.estimator, flight, initial)
             if _alert_seconds(est2) < _alert_seconds(est):
