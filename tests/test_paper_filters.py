@@ -1,7 +1,7 @@
 """The additive-quaternion family: the shipped (numba) models against their numeric twins,
-the dense Kalman and unscented steps against textbook numpy, the paper's printed
-innovation, the paper's claim on its own scenario, zero-noise exactness, bad input, and
-streaming equal to batch."""
+the one Kalman update (as these filters call it) and the unscented steps against textbook
+numpy, the paper's printed innovation, the paper's claim on its own scenario, zero-noise
+exactness, bad input, and streaming equal to batch."""
 
 from __future__ import annotations
 
@@ -14,14 +14,16 @@ from scipy.linalg import expm
 from windahrs.conventions import DEG, UP_N
 from windahrs.core.dense import (
     PIVOT_RTOL,
-    kalman_update,
     psd_root,
     sigma_points,
     ut_mean_cov,
     ut_update,
     ut_weights,
 )
+from windahrs.core.kalman import _fuse, read_logs
+from windahrs.core.layout import INN_ACCEL, INN_MAG, W_HQ, W_NU, W_R
 from windahrs.estimate import Estimate
+from windahrs.filters.additive import make_state
 from windahrs.filters.base import InitialState, MissingSensorError, merge_events
 from windahrs.filters.ekf import TraditionalEKF, TraditionalEKFParams
 from windahrs.filters.paper import PaperEKF, PaperEKFNoWind, PaperNoWindParams, PaperParams
@@ -208,22 +210,58 @@ def test_normalize_state_projects_the_covariance(n: int) -> None:
     np.testing.assert_array_equal(P, P_in)
 
 
-def test_kalman_update_is_the_joseph_form() -> None:
-    rng = np.random.default_rng(RNG_SEED + 10)
-    n, m = 7, 3
-    x, nu = rng.normal(size=n), rng.normal(size=m)
-    A, B = rng.normal(size=(n, n)), rng.normal(size=(m, m))
-    P, R = A @ A.T, B @ B.T + np.eye(m)
-    H = rng.normal(size=(m, n))
-    P_in = P.copy()
-    x2, P2, nis = kalman_update(x, P, H, nu, R)
+def _joseph(x: np.ndarray, P: np.ndarray, H: np.ndarray, nu: np.ndarray, R: np.ndarray):
+    """Textbook EKF update: x + K nu, (I - K H) P (I - K H)^T + K R K^T, the NIS."""
     S = H @ P @ H.T + R
     K = P @ H.T @ np.linalg.inv(S)
-    I_KH = np.eye(n) - K @ H
-    np.testing.assert_allclose(x2, x + K @ nu, rtol=1e-12)
-    np.testing.assert_allclose(P2, I_KH @ P @ I_KH.T + K @ R @ K.T, rtol=1e-10, atol=1e-12)
-    assert nis == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-12)
-    np.testing.assert_array_equal(P, P_in)
+    I_KH = np.eye(len(x)) - K @ H
+    return x + K @ nu, I_KH @ P @ I_KH.T + K @ R @ K.T, float(nu @ np.linalg.solve(S, nu))
+
+
+def _ekf_state(n_log: int = 4):
+    """The compiled state of [ekf] (the paper's form: H on the quaternion's parameters)."""
+    caps = {INN_ACCEL: n_log, INN_MAG: n_log}
+    return make_state(TraditionalEKF().config(None), Site(), frozenset({"imu", "mag"}), caps)
+
+
+def test_the_one_update_on_the_quaternion_columns_is_the_joseph_form() -> None:
+    # The paper's filters give H (3, 4) on q's parameters to the core's one update
+    # (core.kalman._fuse): the Joseph form, then q <- q/|q| (w >= 0), P <- J P J^T.
+    rng = np.random.default_rng(RNG_SEED + 10)
+    st = _ekf_state()
+    q = _unit(rng, 4) * 1.3
+    q[0] = -abs(q[0])  # the flip to w >= 0 after the update
+    A, B = rng.normal(size=(4, 4)), rng.normal(size=(3, 3))
+    P, R = A @ A.T, B @ B.T + np.eye(3)
+    H, nu = rng.normal(size=(3, 4)), rng.normal(size=3)
+    st.x[:] = q
+    st.P[:, :] = P
+    st.work[W_HQ : W_HQ + 3, :4] = H
+    st.work[W_NU, :3] = nu
+    st.work[W_R : W_R + 3, :3] = R
+    args = (st.cfg, st.x, st.flags, st.P, st.work, st.sup, st.inn, st.acc)
+    assert _fuse(*args, np.int64(INN_MAG), 0.25, np.int64(3), np.int64(4), np.inf)
+    x2, P2, nis = _joseph(q, P, H, nu, R)
+    u = x2 / np.linalg.norm(x2)
+    J = -(np.eye(4) - np.outer(u, u)) / np.linalg.norm(x2)  # the sign of the flip included
+    np.testing.assert_allclose(st.x, -u, rtol=1e-12)
+    np.testing.assert_allclose(st.P, J @ P2 @ J.T, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(st.P, st.P.T)
+    np.testing.assert_allclose(st.P @ st.x, 0.0, atol=1e-12)  # nothing along q
+    # logged: t, nu, the NIS, accepted
+    log = read_logs(st.cfg, st.flags, st.inn, st.acc)
+    assert list(log) == ["mag"]
+    np.testing.assert_array_equal(log["mag"].t, [0.25])
+    np.testing.assert_array_equal(log["mag"].nu, [nu])
+    assert log["mag"].nis[0] == pytest.approx(nis, rel=1e-12)
+    assert log["mag"].accepted.tolist() == [True]
+    # a finite gate rejects an innovation beyond it: logged, not fused
+    x_in, P_in = st.x.copy(), st.P.copy()
+    st.work[W_NU, :3] = [1e3, 0.0, 0.0]
+    assert not _fuse(*args, np.int64(INN_MAG), 0.5, np.int64(3), np.int64(4), 9.0)
+    np.testing.assert_array_equal(st.x, x_in)
+    np.testing.assert_array_equal(st.P, P_in)
+    assert read_logs(st.cfg, st.flags, st.inn, st.acc)["mag"].accepted.tolist() == [True, False]
 
 
 def test_unscented_update_equals_the_kalman_update_on_a_linear_model() -> None:
@@ -240,7 +278,7 @@ def test_unscented_update_equals_the_kalman_update_on_a_linear_model() -> None:
     np.testing.assert_allclose(x_ut, x, atol=1e-12)
     np.testing.assert_allclose(P_ut, P, rtol=1e-10, atol=1e-12)
     x_u, P_u, nu, nis_u = ut_update(x, P, X, X @ H.T, z, R, wm, wc)
-    x_k, P_k, nis_k = kalman_update(x, P, H, z - H @ x, R)
+    x_k, P_k, nis_k = _joseph(x, P, H, z - H @ x, R)
     np.testing.assert_allclose(nu, z - H @ x, atol=1e-12)
     np.testing.assert_allclose(x_u, x_k, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(P_u, P_k, rtol=1e-8, atol=1e-10)

@@ -1,7 +1,7 @@
 """The process models of the compiled core: the error-state prediction (attitude, gyro bias,
 velocity, wind, accelerometer and magnetometer biases; SPEC 2.4, 2.5) and the additive
 quaternion prediction of [ekf7] and [ekf10] (SPEC 2.3), with the normalisation that
-projects the covariance.
+projects the covariance (which the paper's filters, windahrs.filters.additive, use too).
 
 The transition matrix is the identity except a few 3x3 blocks in the attitude (and
 velocity) rows, so each prediction rewrites only those rows and columns of P (O(n) work
@@ -229,7 +229,11 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
 
 @njit(**_JIT)
 def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
-    """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T, symmetrised."""
+    """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T with
+    J = blkdiag(+-(I - u u^T)/|q|, I), u = q/|q| (the sign of the flip to w >= 0 in J:
+    the quaternion's covariance with the other states changes sign), the quaternion block
+    symmetrised. (q0..q3): the quaternion before; P (n, n), n = cfg[C_N], the quaternion
+    in its first four rows; in place."""
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     n = cfg[C_N]
     nq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)

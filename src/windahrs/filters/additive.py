@@ -7,9 +7,14 @@ quaternion ``q_nb`` (4,) (the UKF appends the gyro bias), its covariance ``P`` o
 parameters, initialisation (fixed, or TRIAD from the first accelerometer and
 magnetometer samples), the magnetometer reference, sequential 3-row vector updates with
 the innovation ``z - h(x)`` (SPEC 2.3), normalisation of ``q`` after every propagation
-and update with the covariance projected by the normalisation Jacobian, and the paper's
-air-flow row. The model functions are :mod:`windahrs.models.additive`, the Kalman and
-unscented steps :mod:`windahrs.core.dense`; this module only sequences them.
+and update with the covariance projected by the normalisation Jacobian
+(``core.predict._normalise_add``, as [ekf7]'s), and the paper's air-flow row. The model
+functions are :mod:`windahrs.models.additive`; the EKFs' update is the one Kalman update of
+the compiled core (``core.kalman._fuse``, given H on the quaternion's four parameters),
+the UKF's unscented steps are :mod:`windahrs.core.dense`; this module only sequences them.
+The state's arrays extend the core's (``core.layout``): cfg and flags start with the
+core's fields, which the one update and the innovation logs read, and the scratch rows
+``work`` are the core's.
 
 One numba function, :func:`run_events`, runs the merged events of a flight (base.replay
 compiled, with no Python per sample); :class:`AdditiveStreamer` feeds it one event at a
@@ -33,8 +38,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from windahrs.core import layout as core
 from windahrs.core.dense import (
-    kalman_update,
     project_leading,
     propagate_cov,
     sigma_points,
@@ -43,6 +48,31 @@ from windahrs.core.dense import (
     ut_weights,
 )
 from windahrs.core.events import sample_ok
+from windahrs.core.kalman import _fuse, _log, grown_logs, log_layout, read_logs
+from windahrs.core.layout import (
+    ADD_COV,
+    C_ADD,
+    C_CAP,
+    C_IBA,
+    C_IBG,
+    C_IBM,
+    C_IV,
+    C_IW,
+    C_N,
+    INN_ACCEL,
+    INN_AIR,
+    INN_MAG,
+    K_SKIP,
+    L_CNT,
+    L_FIRST,
+    N_SENSORS,
+    N_WORK,
+    NMAX,
+    W_HQ,
+    W_NU,
+    W_R,
+)
+from windahrs.core.predict import _normalise_add
 from windahrs.core.quat import _triad
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
@@ -76,7 +106,6 @@ __all__ = [
     "KIND_EKF",
     "KIND_PAPER",
     "KIND_UKF",
-    "SENSORS",
     "AdditiveEstimator",
     "AdditiveStreamer",
     "KernelConfig",
@@ -100,9 +129,8 @@ _JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 #: (exact transition, noise from the sensor densities), the additive UKF's.
 KIND_PAPER, KIND_EKF, KIND_UKF = 0, 1, 2
 
-#: Innovation logs (the Estimate's ``innovations`` keys, as filters.compiled.SENSORS).
-SENSORS = ("accel", "mag", "air")
-INN_ACCEL, INN_MAG, INN_AIR = 0, 1, 2
+#: The innovation logs (core.layout.AID_LOGS) these filters write.
+LOGGED = (INN_ACCEL, INN_MAG, INN_AIR)
 
 #: Below this air-relative speed (m/s) the air-flow direction is noise, so the row is not
 #: fused (counted).
@@ -111,9 +139,10 @@ MIN_AIR_SPEED = 0.5
 #: Reasons a sample was not fused, in the order of the counters.
 UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
 
-# cfg (int64): fixed for a run
-C_KIND, C_N, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = 0, 1, 2, 3, 4, 5
-N_CFG = 6
+# cfg (int64): fixed for a run; after the core's fields (core.layout: C_N, C_ADD = ADD_COV,
+# no error-state blocks, the log layout)
+C_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
+N_CFG = core.N_CFG + 5
 # prm (float64): parameters
 R_P0_VAR = 0  # paper: initial variance per quaternion parameter
 R_ATT0_VAR = 1  # initial attitude variance per axis, rad^2
@@ -143,12 +172,11 @@ S_MAGNORM = 9
 S_V = 10  # (3,) last GNSS velocity
 S_TGNSS = 13
 N_S = 14
-# flags (int64)
-F_READY, F_TIMU, F_F, F_MAGREF, F_V = 0, 1, 2, 3, 4
-K_SKIP = 5  # (4,) NaN samples skipped: imu, mag, gnss, air
-K_UNF = 9  # (4,) samples not fused, UNFUSED order
-F_NLOG = 13  # rows logged
-N_FLAGS = 14
+# flags (int64): after the core's (core.layout: the log counters L_CNT, L_FIRST, S_SEQ and
+# K_SKIP (4,), NaN samples skipped: imu, mag, gnss, air)
+F_READY, F_TIMU, F_F, F_MAGREF, F_V = range(core.N_FLAGS, core.N_FLAGS + 5)
+K_UNF = core.N_FLAGS + 5  # (4,) samples not fused, UNFUSED order
+N_FLAGS = core.N_FLAGS + 9
 
 _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer's reading
 
@@ -156,8 +184,9 @@ _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer'
 class KernelState(NamedTuple):
     """Everything a running filter needs, in arrays: cfg (N_CFG,) int64, prm (N_PRM,),
     s (N_S,) remembered samples, flags (N_FLAGS,) int64, x (n,), P (n, n), wm and wc
-    (2n+1,) unscented weights (UKF; (1,) otherwise), inn (cap, 5) log rows [t, nu (3),
-    nis], inn_id (cap,) int64 their sensor (SENSORS index)."""
+    (2n+1,) unscented weights (UKF; (1,) otherwise), and as in core.layout.KernelState:
+    work (N_WORK, NMAX) scratch rows, sup (2, NMAX) the columns of H (row 1: all n),
+    inn (L, 5) innovation log rows [t, nu (3), nis], acc (L,) accepted."""
 
     cfg: I64
     prm: F64
@@ -167,8 +196,10 @@ class KernelState(NamedTuple):
     P: F64
     wm: F64
     wc: F64
+    work: F64
+    sup: I64
     inn: F64
-    inn_id: I64
+    acc: NDArray[np.bool_]
 
 
 # --- compiled kernels ---------------------------------------------------------------------
@@ -304,48 +335,51 @@ def _observe_point(S, p, v, Y):
 
 
 @njit(**_JIT)
-def _normalize(x, P):
-    """:func:`~windahrs.models.additive.normalize_state` in place."""
-    x2, P2 = normalize_state(x, P)
-    x[:] = x2
-    P[:, :] = P2
+def _normalize(cfg, x, P, work):
+    """``q <- q/|q|`` (w >= 0), ``P <- J P J^T`` (SPEC 2.3), in place: the EKFs' by the
+    core's ``_normalise_add`` (as after their update), the UKF's by
+    :func:`~windahrs.models.additive.normalize_state`."""
+    if cfg[C_KIND] == KIND_UKF:
+        x2, P2 = normalize_state(x, P)
+        x[:] = x2
+        P[:, :] = P2
+    else:
+        _normalise_add(cfg, x, P, work, x[0], x[1], x[2], x[3])
 
 
 @njit(**_JIT)
-def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, r_n, var):
-    """Fuse ``z = C_bn r_n + v``, v ~ N(0, var I3): EKF (Joseph form) or unscented update,
-    normalisation, one log row."""
-    n = cfg[C_N]
-    R = var * np.eye(3)
+def _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, z, r_n, var):
+    """Fuse ``z = C_bn r_n + v``, v ~ N(0, var I3), and log it. The EKFs: the one Kalman
+    update (``core.kalman._fuse``) with H (3, 4) on the quaternion's parameters (the
+    columns ``sup[1, :4]``) and no gate (these filters fuse every sample: the gate at
+    infinity accepts every finite innovation), then its normalisation. The UKF: the
+    unscented update, the normalisation, the log row (accepted)."""
     if cfg[C_KIND] == KIND_UKF:
         S = sigma_points(x, P, prm[R_SPREAD])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
             _observe_point(S, p, r_n, Y)
-        x2, P2, nu, nis = ut_update(x, P, S, Y, z, R, wm, wc)
+        x2, P2, nu, nis = ut_update(x, P, S, Y, z, var * np.eye(3), wm, wc)
+        x[:] = x2
+        P[:, :] = P2
+        _normalize(cfg, x, P, work)
+        _log(cfg, flags, inn, acc, nu, sensor, t, np.int64(3), nis, np.bool_(True))
     else:
-        q = x[:4].copy()
-        if n == 4:
-            H = vector_obs_jacobian(q, r_n)
-        else:
-            H = np.zeros((3, n))
-            H[:, :4] = vector_obs_jacobian(q, r_n)
-        nu = z - vector_obs(q, r_n)
-        x2, P2, nis = kalman_update(x, P, H, nu, R)
-    _normalize(x2, P2)
-    x[:] = x2
-    P[:, :] = P2
-    k = flags[F_NLOG]
-    inn[k, 0] = t
-    inn[k, 1:4] = nu
-    inn[k, 4] = nis
-    inn_id[k] = sensor
-    flags[F_NLOG] = k + 1
+        q = x[:4]
+        Hq, y = vector_obs_jacobian(q, r_n), vector_obs(q, r_n)
+        H, nu, R = work[W_HQ : W_HQ + 3], work[W_NU], work[W_R : W_R + 3]
+        for k in range(3):
+            nu[k] = z[k] - y[k]
+            for c in range(4):
+                H[k, c] = Hq[k, c]
+            for c in range(3):
+                R[k, c] = var if k == c else 0.0
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, np.int64(3), np.int64(4), np.inf)
     s[S_TSTATE] = t
 
 
 @njit(**_JIT)
-def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):
+def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b):
     """IMU sample: gyro w_b (3,) rad/s, specific force f_b (3,) m/s^2 at t s."""
     first = flags[F_TIMU] == 0
     dt = 0.0 if first else t - s[S_TIMU]
@@ -365,18 +399,19 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):
         return  # TRIAD still waits for its magnetometer sample
     s[S_DT] = dt
     _predict(cfg, prm, x, P, wm, wc, w_b, dt)
-    _normalize(x, P)
+    _normalize(cfg, x, P, work)
     if cfg[C_KIND] == KIND_PAPER:
         var = prm[R_ACC_VAR]
     else:
         # Per-sample noise sigma_c / sqrt(dt) (Kalibr), divided by |f| = g for the unit vector.
         sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_GRAV]
         var = sw * sw + prm[R_ACC_UNIT2]
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_ACCEL, t, f_b / _norm3(f_b), _UP_N, var)
+    sensor = np.int64(INN_ACCEL)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, f_b / _norm3(f_b), _UP_N, var)
 
 
 @njit(**_JIT)
-def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):
+def step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, mag_b):
     """Magnetometer sample mag_b (3,) T at t s."""
     if flags[F_F] == 0:
         flags[K_UNF + 0] += 1  # mag_before_imu
@@ -405,7 +440,8 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):
         r = prm[R_MAG_NOISE] / s[S_MAGNORM]
         var = r * r + prm[R_MAG_UNIT2]
     r_n = s[S_MAGREF : S_MAGREF + 3].copy()
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_MAG, t, mag_b / norm, r_n, var)
+    sensor = np.int64(INN_MAG)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, mag_b / norm, r_n, var)
 
 
 @njit(**_JIT)
@@ -417,7 +453,7 @@ def step_gnss(s, flags, t, v_n):
 
 
 @njit(**_JIT)
-def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n):
+def step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, aoa, beta, wind_n):
     """Air data at t s: the air-flow direction from the vanes (aoa, beta rad) against
     ``u = (V_n - W_n)/|V_n - W_n|``, V_n the latest GNSS velocity, wind_n (3,) the
     provider's wind (SPEC 3.4.3)."""
@@ -441,7 +477,8 @@ def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n
     z[0] = math.cos(aoa) * math.cos(beta)
     z[1] = math.sin(beta)
     z[2] = math.sin(aoa) * math.cos(beta)
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_AIR, t, z, u / speed, prm[R_AIR_VAR])
+    sensor = np.int64(INN_AIR)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, z, u / speed, prm[R_AIR_VAR])
 
 
 @njit(**_JIT)
@@ -481,7 +518,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
     """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6);
     an air row carries the wind in columns 3..5), skip and count NaN samples, and (rec)
     record for IMU sample k the state after every event with t <= t_imu[k]."""
-    cfg, prm, s, flags, x, P, wm, wc, inn, inn_id = st
+    cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc = st
     k = -1
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
@@ -493,13 +530,13 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
         elif kind == EVENT_IMU:
-            step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy(), row[3:6].copy())
+            step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, row[:3].copy(), row[3:6].copy())
         elif kind == EVENT_MAG:
-            step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy())
+            step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, row[:3].copy())
         elif kind == EVENT_GNSS:
             step_gnss(s, flags, t, row[:3].copy())
         elif kind == EVENT_AIR:
-            step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[1], row[2], row[3:6].copy())
+            step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, row[1], row[2], row[3:6].copy())
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov)
 
@@ -537,12 +574,20 @@ class KernelConfig:
     ut: tuple[float, float, float] = (1.0, 0.0, 1.0)  # alpha, beta, kappa
 
 
-def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> KernelState:
+def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int, int]) -> KernelState:
     """A fresh KernelState for the filter c at the site; has: the streams that will be fed;
-    cap: innovation log rows (at most one per event)."""
+    caps: innovation log rows by sensor (core.layout's INN_ACCEL, INN_MAG, INN_AIR; at
+    most one per event of its stream)."""
     cfg = np.zeros(N_CFG, dtype=np.int64)
-    cfg[C_KIND] = c.kind
+    # the core's fields: the covariance, the form of H, no error-state blocks to inject into
     cfg[C_N] = c.n
+    cfg[C_ADD] = ADD_COV
+    cfg[C_IV] = cfg[C_IBG] = cfg[C_IW] = cfg[C_IBA] = cfg[C_IBM] = -1
+    rows = np.zeros(N_SENSORS, dtype=np.int64)
+    for sensor, cap in caps.items():
+        rows[sensor] = cap
+    total = log_layout(cfg, rows)
+    cfg[C_KIND] = c.kind
     cfg[C_HAS_MAG] = int("mag" in has)
     cfg[C_QSTART] = int(c.q_start is not None)
     cfg[C_USE_AIR] = int(c.use_air)
@@ -577,6 +622,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
     s[S_TGNSS] = -np.inf
     s[S_TSTATE] = -np.inf  # no sample yet
     flags = np.zeros(N_FLAGS, dtype=np.int64)
+    flags[L_FIRST : L_FIRST + N_SENSORS] = -1
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
         norm = float(np.linalg.norm(site.mag_n))
@@ -590,6 +636,8 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
         wm, wc = np.ones(1), np.ones(1)
     x = np.zeros(c.n)
     x[0] = 1.0
+    sup = np.zeros((2, NMAX), dtype=np.int64)
+    sup[1, :4] = np.arange(4)  # the vector rows' H: on the quaternion's columns
     return KernelState(
         cfg=cfg,
         prm=prm,
@@ -599,25 +647,16 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
         P=np.eye(c.n),
         wm=wm,
         wc=wc,
-        inn=np.empty((cap, 5)),
-        inn_id=np.zeros(cap, dtype=np.int64),
+        work=np.zeros((N_WORK, max(c.n, NMAX))),
+        sup=sup,
+        inn=np.empty((total, 5)),
+        acc=np.zeros(total, dtype=np.bool_),
     )
 
 
 def _innovations(st: KernelState) -> dict[str, Innovations]:
-    """The log as Estimate innovations, keyed in the order sensors first logged."""
-    m = int(st.flags[F_NLOG])
-    ids, rows = st.inn_id[:m], st.inn[:m]
-    out: dict[str, Innovations] = {}
-    for sid in dict.fromkeys(ids.tolist()):
-        sel = ids == sid
-        out[SENSORS[sid]] = Innovations(
-            t=rows[sel, 0].copy(),
-            nu=rows[sel, 1:4].copy(),
-            nis=rows[sel, 4].copy(),
-            accepted=np.ones(int(sel.sum()), dtype=bool),
-        )
-    return out
+    """The logs as Estimate innovations, keyed in the order sensors first logged."""
+    return read_logs(st.cfg, st.flags, st.inn, st.acc)
 
 
 def unfused_counts(st: KernelState) -> dict[str, int]:
@@ -646,7 +685,7 @@ class AdditiveStreamer(EventStreamer):
         self._c = config
         self._labels = labels
         self._wind = wind
-        self._st = make_state(config, site, has, 256)
+        self._st = make_state(config, site, has, dict.fromkeys(LOGGED, 256))
         d = len(labels)
         self._q, self._bg, self._cov = np.empty((1, 4)), np.empty((1, 3)), np.empty((1, d, d))
 
@@ -657,12 +696,9 @@ class AdditiveStreamer(EventStreamer):
 
     def _step(self, kind: int, t: float) -> None:
         st = self._st
-        if st.flags[F_NLOG] >= len(st.inn_id):  # an event logs at most one row
-            cap = 2 * len(st.inn_id)
-            inn, ids = np.empty((cap, 5)), np.zeros(cap, dtype=np.int64)
-            inn[: len(st.inn)] = st.inn
-            ids[: len(st.inn_id)] = st.inn_id
-            self._st = st = st._replace(inn=inn, inn_id=ids)
+        if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
+            cfg, inn, acc = grown_logs(st.cfg, st.flags, st.inn, st.acc)  # an event logs at most one row
+            self._st = st = st._replace(cfg=cfg, inn=inn, acc=acc)
         run_events(st, self._t, self._kind, self._row, self._q, self._bg, self._cov, False)
 
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
@@ -723,7 +759,9 @@ class AdditiveEstimator(Estimator):
             air = np.flatnonzero(kinds == EVENT_AIR)
             vals[air, 3:6] = wind_at(wind, t_ev[air])
         c = self.config(initial)
-        st = make_state(c, flight.site, has, len(t_ev))
+        counts = np.bincount(kinds, minlength=len(_STREAMS))
+        caps = {INN_ACCEL: counts[EVENT_IMU], INN_MAG: counts[EVENT_MAG], INN_AIR: counts[EVENT_AIR]}
+        st = make_state(c, flight.site, has, caps)
         N, d = len(flight.imu.t), len(self.labels)
         q, cov = np.empty((N, 4)), np.empty((N, d, d))
         bg = np.empty((N, 3)) if c.n == 7 else np.empty((0, 3))
