@@ -1,6 +1,6 @@
 """Dense unscented machinery in numba: the unscented transform of the additive UKF
-([ukf]), the one unscented gain step that [ukf] and [usque] share, and the dense
-covariance helpers of the additive filters (propagation, projection of a leading block).
+([ukf]), the one unscented gain step that [ukf] and [usque] share, and the paper's dense
+covariance propagation ``Phi P Phi^T + Q``.
 The EKFs' update is the one Kalman update of the compiled core (``core.kalman._fuse``).
 
 States are (n,) float64 arrays, covariances (n, n), measurements (m,) with noise R (m, m);
@@ -23,7 +23,6 @@ from numba import njit
 
 __all__ = [
     "PIVOT_RTOL",
-    "project_leading",
     "propagate_cov",
     "psd_root",
     "sigma_points",
@@ -199,9 +198,20 @@ def _weighted_cross(wc, X, x, Y, y):
 
 @njit(**_JIT)
 def ut_mean_cov(X, wm, wc):
-    """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n)."""
+    """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n); the covariance
+    is exactly symmetric (each entry above the diagonal summed once and mirrored)."""
     x = _weighted_mean(X, wm)
-    return x, _weighted_cross(wc, X, x, X, x)
+    npts, n = X.shape
+    C = np.zeros((n, n))
+    for p in range(npts):
+        for i in range(n):
+            a = wc[p] * (X[p, i] - x[i])
+            for j in range(i, n):
+                C[i, j] += a * (X[p, j] - x[j])
+    for i in range(n):
+        for j in range(i):
+            C[i, j] = C[j, i]
+    return x, C
 
 
 @njit(**_JIT)
@@ -247,29 +257,6 @@ def ut_update(x, P, X, Y, z, R, wm, wc):
     P2 = P.copy()
     unscented_gain(P2, Pxy, Si, nu, K, dx, n, m)
     return x + dx, P2, nu, _quad(nu, Si)
-
-
-@njit(**_JIT)
-def project_leading(P, J):
-    """``T P T^T`` (n, n) for ``T = blkdiag(J, I)``, J (k, k) acting on the first k of
-    the n states (the normalisation Jacobian of a leading quaternion): only the first k
-    rows and columns change. Plain loops; returns a new array."""
-    n, k = P.shape[0], J.shape[0]
-    A = P.copy()  # T P: the first k rows
-    for i in range(k):
-        for j in range(n):
-            s = 0.0
-            for a in range(k):
-                s += J[i, a] * P[a, j]
-            A[i, j] = s
-    out = A.copy()  # (T P) T^T: the first k columns
-    for i in range(n):
-        for j in range(k):
-            s = 0.0
-            for a in range(k):
-                s += A[i, a] * J[j, a]
-            out[i, j] = s
-    return out
 
 
 @njit(**_JIT)

@@ -7,14 +7,20 @@ quaternion ``q_nb`` (4,) (the UKF appends the gyro bias), its covariance ``P`` o
 parameters, initialisation (fixed, or TRIAD from the first accelerometer and
 magnetometer samples), the magnetometer reference, sequential 3-row vector updates with
 the innovation ``z - h(x)`` (SPEC 2.3), normalisation of ``q`` after every propagation
-and update with the covariance projected by the normalisation Jacobian
-(``core.predict._normalise_add``, as [ekf7]'s), and the paper's air-flow row. The model
-functions are :mod:`windahrs.models.additive`; the EKFs' update is the one Kalman update of
-the compiled core (``core.kalman._fuse``, given H on the quaternion's four parameters),
-the UKF's unscented steps are :mod:`windahrs.core.dense`; this module only sequences them.
-The state's arrays extend the core's (``core.layout``): cfg and flags start with the
-core's fields, which the one update and the innovation logs read, and the scratch rows
-``work`` are the core's.
+and update with the covariance projected by the normalisation Jacobian, and the paper's
+air-flow row. What they share with [ekf7] is the compiled core's, written once:
+
+* the EKFs' update is the one Kalman update ``core.kalman._fuse``, given H on the
+  quaternion's four parameters;
+* [ekf]'s prediction is ``core.predict._predict_add`` (SPEC 2.3 without a gyro-bias
+  state); the UKF adds its process noise with ``core.predict._noise_add``;
+* the normalisation is ``core.predict._normalise_add``.
+
+The paper's own process model (Picard-4, constant Q) and the vector observations are
+:mod:`windahrs.models.additive`, the UKF's unscented steps :mod:`windahrs.core.dense`;
+this module sequences them. The state's arrays extend the core's (``core.layout``): cfg,
+prm and flags start with the core's fields, which the shared functions and the innovation
+logs read, and the scratch rows ``work`` are the core's.
 
 One numba function, :func:`run_events`, runs the merged events of a flight (base.replay
 compiled, with no Python per sample); :class:`AdditiveStreamer` feeds it one event at a
@@ -40,7 +46,6 @@ from numpy.typing import NDArray
 
 from windahrs.core import layout as core
 from windahrs.core.dense import (
-    project_leading,
     propagate_cov,
     sigma_points,
     ut_mean_cov,
@@ -50,30 +55,18 @@ from windahrs.core.dense import (
 from windahrs.core.events import sample_ok
 from windahrs.core.kalman import _fuse, _log, grown_logs, log_layout, read_logs
 from windahrs.core.layout import (
-    ADD_COV,
-    C_ADD,
-    C_CAP,
-    C_IBA,
-    C_IBG,
-    C_IBM,
-    C_IV,
-    C_IW,
     C_N,
     INN_ACCEL,
     INN_AIR,
     INN_MAG,
     K_SKIP,
-    L_CNT,
-    L_FIRST,
-    N_SENSORS,
-    N_WORK,
-    NMAX,
     W_HQ,
+    W_M,
     W_NU,
     W_R,
 )
-from windahrs.core.predict import _normalise_add
-from windahrs.core.quat import _triad
+from windahrs.core.predict import _noise_add, _normalise_add, _predict_add
+from windahrs.core.quat import _qexp, _qmul, _triad, _xi_into
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     EVENT_AIR,
@@ -91,12 +84,7 @@ from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
     Xi,
     att_cov_from_quat_cov,
-    ekf7_process_noise,
-    normalization_jacobian,
-    normalize_state,
     quat_cov_from_att_cov,
-    sinc,
-    transition_exact,
     transition_picard4,
     vector_obs,
     vector_obs_jacobian,
@@ -143,27 +131,27 @@ UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
 # no error-state blocks, the log layout)
 C_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
 N_CFG = core.N_CFG + 5
-# prm (float64): parameters
-R_P0_VAR = 0  # paper: initial variance per quaternion parameter
-R_ATT0_VAR = 1  # initial attitude variance per axis, rad^2
-R_BG0_VAR = 2  # initial gyro-bias variance per axis
-R_Q_VAR = 3  # paper: process variance per quaternion parameter per step
-R_ACC_VAR = 4  # paper: accelerometer variance per component
-R_MAG_VAR = 5  # paper: magnetometer variance per component
-R_AIR_VAR = 6  # paper: air-flow variance per component
-R_GNSS_AGE = 7  # paper: oldest GNSS velocity the air row uses, s
-R_GYRO = 8  # gyro white-noise density
-R_ACC_NOISE = 9  # accelerometer white-noise density
-R_ACC_UNIT2 = 10  # extra variance of the normalised accelerometer
-R_MAG_NOISE = 11  # magnetometer noise per sample, T
-R_MAG_UNIT2 = 12  # extra variance of the normalised magnetometer
-R_BG_RW = 13  # gyro-bias random-walk density
-R_GRAV = 14  # |g|, m/s^2
-R_SPREAD = 15  # UKF: n + lambda
-R_SITE_MAG = 16  # (3,) the site's field, or 0
-R_QSTART = 19  # (4,) fixed initial attitude
-R_B0 = 23  # (3,) initial gyro bias
-N_PRM = 26
+# prm (float64): parameters; after the core's fields (core.layout: the process noise of
+# core.predict's additive model, R_SG2 = gyro_noise^2 and R_SB2 = gyro_bias_rw^2; the rest 0)
+_PRM0 = core.N_PRM
+R_P0_VAR = _PRM0 + 0  # paper: initial variance per quaternion parameter
+R_ATT0_VAR = _PRM0 + 1  # initial attitude variance per axis, rad^2
+R_BG0_VAR = _PRM0 + 2  # initial gyro-bias variance per axis
+R_Q_VAR = _PRM0 + 3  # paper: process variance per quaternion parameter per step
+R_ACC_VAR = _PRM0 + 4  # paper: accelerometer variance per component
+R_MAG_VAR = _PRM0 + 5  # paper: magnetometer variance per component
+R_AIR_VAR = _PRM0 + 6  # paper: air-flow variance per component
+R_GNSS_AGE = _PRM0 + 7  # paper: oldest GNSS velocity the air row uses, s
+R_ACC_NOISE = _PRM0 + 8  # accelerometer white-noise density
+R_ACC_UNIT2 = _PRM0 + 9  # extra variance of the normalised accelerometer
+R_MAG_NOISE = _PRM0 + 10  # magnetometer noise per sample, T
+R_MAG_UNIT2 = _PRM0 + 11  # extra variance of the normalised magnetometer
+R_GRAV = _PRM0 + 12  # |g|, m/s^2
+R_SPREAD = _PRM0 + 13  # UKF: n + lambda
+R_SITE_MAG = _PRM0 + 14  # (3,) the site's field, or 0
+R_QSTART = _PRM0 + 17  # (4,) fixed initial attitude
+R_B0 = _PRM0 + 21  # (3,) initial gyro bias
+N_PRM = _PRM0 + 24
 # s (float64): the remembered samples
 S_TIMU, S_TSTATE, S_DT = 0, 1, 2
 S_F = 3  # (3,) last specific force
@@ -263,26 +251,24 @@ def _matvec4(M, v):
 
 
 @njit(**_JIT)
-def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
-    """Propagate (x, P) in place over dt with the gyro sample w_b (3,)."""
+def _predict(cfg, prm, x, P, wm, wc, work, w_b, dt):
+    """Propagate (x, P) in place over dt with the gyro sample w_b (3,), and normalise.
+
+    [paper], [paper-nowind]: the paper's own process model (eq. 6 and 32: the Picard-4
+    transition with the raw gyro, no bias state, the constant ``Q = q_var I4`` on the
+    quaternion's parameters; SPEC 2.2, 2.3's paper-faithful variant). [ekf]: SPEC 2.3
+    without a gyro-bias state, the core's additive prediction (``core.predict._predict_add``,
+    [ekf7]'s). [ukf]: the sigma points through ``q * Exp((w - b) dt)``, SPEC 2.3's Q
+    (``core.predict._noise_add``)."""
     kind = cfg[C_KIND]
     if kind == KIND_PAPER:
         # The paper's filter has no bias state: the raw gyro drives eq. 6.
         Phi = transition_picard4(w_b * dt)
         x[:] = _matvec4(Phi, x)
         P[:, :] = propagate_cov(Phi, P, prm[R_Q_VAR] * np.eye(4))
+        _normalize(cfg, x, P, work)
     elif kind == KIND_EKF:
-        Phi = transition_exact(w_b * dt)
-        q = _matvec4(Phi, x)
-        X = Xi(q)
-        x[:] = q
-        # SPEC 2.3 Q_d,qq with sigma_b = 0: the gyro white noise, rank 3.
-        c = prm[R_GYRO] ** 2 * dt / 4.0
-        Q = np.empty((4, 4))
-        for i in range(4):
-            for j in range(4):
-                Q[i, j] = c * (X[i, 0] * X[j, 0] + X[i, 1] * X[j, 1] + X[i, 2] * X[j, 2])
-        P[:, :] = propagate_cov(Phi, P, Q)
+        _predict_add(cfg, prm, x, P, work, w_b[0], w_b[1], w_b[2], dt)
     else:
         S = sigma_points(x, P, prm[R_SPREAD])
         npts = S.shape[0]
@@ -295,28 +281,24 @@ def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
             if S[p, 0] * c[0] + S[p, 1] * c[1] + S[p, 2] * c[2] + S[p, 3] * c[3] < 0.0:
                 S[p, :4] = -S[p, :4]
         xm, Pm = ut_mean_cov(S, wm, wc)
-        q = xm[:4].copy()
-        Pm = project_leading(Pm, normalization_jacobian(q))
-        xm[:4] = q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
         x[:] = xm
-        P[:, :] = Pm + ekf7_process_noise(xm[:4].copy(), prm[R_GYRO], prm[R_BG_RW], dt)
+        P[:, :] = Pm
+        # SPEC 2.3's Q at the mean, then the normalisation: [ekf7]'s order (Q at a non-unit
+        # q is Q at q/|q| once projected, J Xi(q) = Xi(q/|q|))
+        Xi = work[W_M + 4 : W_M + 8]
+        _xi_into(x[0], x[1], x[2], x[3], Xi)
+        _noise_add(cfg, prm, P, Xi, dt)
+        _normalize(cfg, x, P, work)
 
 
-# The UKF's quaternion arithmetic: rotation.quat_mul / quat_exp / quat_rotate_inv on scalars.
+# The UKF's sigma points: the kinematics (core.quat) and the vector rows on scalars.
 
 
 @njit(**_JIT)
 def _propagate_point(S, p, w_b, dt):
     """Sigma point p of S (2n+1, 7) in place: ``q <- q * Exp((w_b - b) dt)``, normalised."""
-    d0, d1, d2 = (w_b[0] - S[p, 4]) * dt, (w_b[1] - S[p, 5]) * dt, (w_b[2] - S[p, 6]) * dt
-    a = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    s = 0.5 * sinc(a / (2.0 * np.pi))
-    e0, e1, e2, e3 = math.cos(0.5 * a), s * d0, s * d1, s * d2
-    p0, p1, p2, p3 = S[p, 0], S[p, 1], S[p, 2], S[p, 3]
-    q0 = p0 * e0 - p1 * e1 - p2 * e2 - p3 * e3
-    q1 = p0 * e1 + p1 * e0 + p2 * e3 - p3 * e2
-    q2 = p0 * e2 - p1 * e3 + p2 * e0 + p3 * e1
-    q3 = p0 * e3 + p1 * e2 - p2 * e1 + p3 * e0
+    e = _qexp((w_b[0] - S[p, 4]) * dt, (w_b[1] - S[p, 5]) * dt, (w_b[2] - S[p, 6]) * dt)
+    q0, q1, q2, q3 = _qmul(S[p, 0], S[p, 1], S[p, 2], S[p, 3], e[0], e[1], e[2], e[3])
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     S[p, 0], S[p, 1], S[p, 2], S[p, 3] = q0 / n, q1 / n, q2 / n, q3 / n
 
@@ -336,15 +318,9 @@ def _observe_point(S, p, v, Y):
 
 @njit(**_JIT)
 def _normalize(cfg, x, P, work):
-    """``q <- q/|q|`` (w >= 0), ``P <- J P J^T`` (SPEC 2.3), in place: the EKFs' by the
-    core's ``_normalise_add`` (as after their update), the UKF's by
-    :func:`~windahrs.models.additive.normalize_state`."""
-    if cfg[C_KIND] == KIND_UKF:
-        x2, P2 = normalize_state(x, P)
-        x[:] = x2
-        P[:, :] = P2
-    else:
-        _normalise_add(cfg, x, P, work, x[0], x[1], x[2], x[3])
+    """``q <- q/|q|`` (w >= 0), ``P <- J P J^T`` (SPEC 2.3) in place: the core's
+    additive normalisation (``core.predict._normalise_add``, [ekf7]'s)."""
+    _normalise_add(cfg, x, P, work, x[0], x[1], x[2], x[3])
 
 
 @njit(**_JIT)
@@ -398,8 +374,7 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b)
     if flags[F_READY] == 0:
         return  # TRIAD still waits for its magnetometer sample
     s[S_DT] = dt
-    _predict(cfg, prm, x, P, wm, wc, w_b, dt)
-    _normalize(cfg, x, P, work)
+    _predict(cfg, prm, x, P, wm, wc, work, w_b, dt)
     if cfg[C_KIND] == KIND_PAPER:
         var = prm[R_ACC_VAR]
     else:
@@ -581,9 +556,10 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     cfg = np.zeros(N_CFG, dtype=np.int64)
     # the core's fields: the covariance, the form of H, no error-state blocks to inject into
     cfg[C_N] = c.n
-    cfg[C_ADD] = ADD_COV
-    cfg[C_IV] = cfg[C_IBG] = cfg[C_IW] = cfg[C_IBA] = cfg[C_IBM] = -1
-    rows = np.zeros(N_SENSORS, dtype=np.int64)
+    cfg[core.C_ADD] = core.ADD_COV
+    cfg[core.C_IV] = cfg[core.C_IW] = cfg[core.C_IBA] = cfg[core.C_IBM] = -1
+    cfg[core.C_IBG] = 3 if c.n == 7 else -1  # the UKF's gyro bias: covariance rows 4..6
+    rows = np.zeros(core.N_SENSORS, dtype=np.int64)
     for sensor, cap in caps.items():
         rows[sensor] = cap
     total = log_layout(cfg, rows)
@@ -601,12 +577,12 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     prm[R_MAG_VAR] = c.mag_var
     prm[R_AIR_VAR] = c.air_var
     prm[R_GNSS_AGE] = c.gnss_max_age
-    prm[R_GYRO] = c.gyro_noise
+    prm[core.R_SG2] = c.gyro_noise**2
+    prm[core.R_SB2] = c.gyro_bias_rw**2
     prm[R_ACC_NOISE] = c.accel_noise
     prm[R_ACC_UNIT2] = c.accel_sigma_unit**2
     prm[R_MAG_NOISE] = c.mag_noise
     prm[R_MAG_UNIT2] = c.mag_sigma_unit**2
-    prm[R_BG_RW] = c.gyro_bias_rw
     prm[R_GRAV] = site.gravity
     if c.q_start is not None:
         q = np.asarray(c.q_start, dtype=np.float64)
@@ -622,7 +598,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     s[S_TGNSS] = -np.inf
     s[S_TSTATE] = -np.inf  # no sample yet
     flags = np.zeros(N_FLAGS, dtype=np.int64)
-    flags[L_FIRST : L_FIRST + N_SENSORS] = -1
+    flags[core.L_FIRST : core.L_FIRST + core.N_SENSORS] = -1
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
         norm = float(np.linalg.norm(site.mag_n))
@@ -636,7 +612,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
         wm, wc = np.ones(1), np.ones(1)
     x = np.zeros(c.n)
     x[0] = 1.0
-    sup = np.zeros((2, NMAX), dtype=np.int64)
+    sup = np.zeros((2, core.NMAX), dtype=np.int64)
     sup[1, :4] = np.arange(4)  # the vector rows' H: on the quaternion's columns
     return KernelState(
         cfg=cfg,
@@ -647,7 +623,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
         P=np.eye(c.n),
         wm=wm,
         wc=wc,
-        work=np.zeros((N_WORK, max(c.n, NMAX))),
+        work=np.zeros((core.N_WORK, max(c.n, core.NMAX))),
         sup=sup,
         inn=np.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),
@@ -696,7 +672,8 @@ class AdditiveStreamer(EventStreamer):
 
     def _step(self, kind: int, t: float) -> None:
         st = self._st
-        if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
+        cnt = st.flags[core.L_CNT : core.L_CNT + core.N_SENSORS]
+        if (cnt >= st.cfg[core.C_CAP : core.C_CAP + core.N_SENSORS]).any():
             cfg, inn, acc = grown_logs(st.cfg, st.flags, st.inn, st.acc)  # an event logs at most one row
             self._st = st = st._replace(cfg=cfg, inn=inn, acc=acc)
         run_events(st, self._t, self._kind, self._row, self._q, self._bg, self._cov, False)
