@@ -202,9 +202,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     n = cfg[C_N]
     H, sup = work[W_H : W_H + 3], sups[0]
     Hm, cols, nc = H, sup, nsup
-    if cfg[C_ADD] == ADD_COV:
-        Hm, cols = work[W_HQ : W_HQ + 3], sups[1]
-    elif cfg[C_ADD] == ADD_ATT:
+    if cfg[C_ADD] == ADD_ATT:
         Hq = work[W_HQ : W_HQ + 3]
         cols = sups[1]
         q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
@@ -225,6 +223,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 for k in range(m):
                     Hq[k, c + 1] = H[k, c]
         Hm = Hq
+    elif cfg[C_ADD] == ADD_COV:
+        Hm, cols = work[W_HQ : W_HQ + 3], sups[1]
     U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
     R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
     nu, dx = work[W_NU], work[W_DX]
@@ -314,10 +314,11 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     if cfg[C_ADD] != ADD_NONE:
-        for a in range(3):
-            if ib >= 0:
+        if ib >= 0:
+            for a in range(3):
                 x[X_BG + a] += dx[ib + 1 + a]
-            if iw >= 0:
+        if iw >= 0:
+            for a in range(3):
                 x[X_W + a] += dx[iw + 1 + a]
         _normalise_add(
             cfg, x, P, work, x[X_Q] + dx[0], x[X_Q + 1] + dx[1], x[X_Q + 2] + dx[2], x[X_Q + 3] + dx[3]

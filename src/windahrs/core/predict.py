@@ -269,7 +269,7 @@ def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = sign * u[0], sign * u[1], sign * u[2], sign * u[3]
 
 
-@njit(**_JIT_FMA)
+@njit(inline="always", **_JIT_FMA)
 def _noise_add(cfg, prm, P, Xi, dt):
     """SPEC 2.3's discrete process noise of the additive state ``[q; b_g (; W)]`` added to
     P (n, n), n = cfg[C_N]: ``(sg2 dt/4 + sb2 dt^3/12) Xi Xi^T`` on the quaternion,
