@@ -1,7 +1,7 @@
 """The additive-quaternion family: the shipped (numba) models against their numeric twins,
-the dense Kalman and unscented steps against textbook numpy, the paper's printed
-innovation, the paper's claim on its own scenario, zero-noise exactness, bad input, and
-streaming equal to batch."""
+the one Kalman update (as these filters call it) and the unscented steps against textbook
+numpy, the paper's printed innovation, the paper's claim on its own scenario, zero-noise
+exactness, bad input, and streaming equal to batch."""
 
 from __future__ import annotations
 
@@ -14,30 +14,29 @@ from scipy.linalg import expm
 from windahrs.conventions import DEG, UP_N
 from windahrs.core.dense import (
     PIVOT_RTOL,
-    kalman_update,
     psd_root,
     sigma_points,
     ut_mean_cov,
     ut_update,
     ut_weights,
 )
+from windahrs.core.kalman import _fuse, read_logs
+from windahrs.core.kernel import make_state as kernel_state
+from windahrs.core.layout import C_N, INN_ACCEL, INN_MAG, N_SENSORS, R_SB2, R_SG2, W_HQ, W_NU, W_R
+from windahrs.core.predict import _normalise_add, _predict_add
 from windahrs.estimate import Estimate
+from windahrs.filters.additive import make_state
 from windahrs.filters.base import InitialState, MissingSensorError, merge_events
 from windahrs.filters.ekf import TraditionalEKF, TraditionalEKFParams
 from windahrs.filters.paper import PaperEKF, PaperEKFNoWind, PaperNoWindParams, PaperParams
+from windahrs.filters.params import EskfParams
 from windahrs.filters.ukf import AdditiveUKF, AdditiveUKFParams
 from windahrs.flight import Flight, ImuStream, MagStream, Site
 from windahrs.models.additive import (
     Omega,
     Xi,
     att_cov_from_quat_cov,
-    ekf7_jacobian,
-    ekf7_process_noise,
-    normalization_jacobian,
-    normalize_state,
-    project_normalization,
     quat_cov_from_att_cov,
-    transition_exact,
     transition_picard4,
     vector_obs,
     vector_obs_jacobian,
@@ -90,47 +89,75 @@ def test_omega_and_xi_are_the_quaternion_product() -> None:
         np.testing.assert_allclose(Xi(u) @ Xi(u).T, np.eye(4) - np.outer(u, u), atol=1e-14)
 
 
-def test_exact_transition_is_the_exponential() -> None:
-    rng = np.random.default_rng(RNG_SEED + 1)
-    for scale in (0.0, 1e-9, 0.05, 1.0, 3.0):
-        d = rng.normal(size=3) * scale
-        q = _unit(rng, 4)
-        Phi = transition_exact(d)
-        np.testing.assert_allclose(Phi, expm(0.5 * Omega(d)), atol=1e-13)
-        np.testing.assert_allclose(Phi @ q, quat_mul(q, quat_exp(d)), atol=1e-14)
+def _ekf7_state():
+    """The compiled core's state of [ekf7] ([q; b_g], core.predict._predict_add with a bias)."""
+    caps = np.zeros(N_SENSORS, dtype=np.int64)
+    return kernel_state("mekf", True, EskfParams(), Site(), None, frozenset(), caps)
+
+
+def _ekf_state(n_log: int = 4):
+    """The compiled state of [ekf] (the paper's form: H on the quaternion's parameters)."""
+    caps = {INN_ACCEL: n_log, INN_MAG: n_log}
+    return make_state(TraditionalEKF().config(None), Site(), frozenset({"imu", "mag"}), caps)
+
+
+def _ukf_state():
+    """The compiled state of [ukf] ([q; b_g] in the additive loop)."""
+    return make_state(AdditiveUKF().config(None), Site(), frozenset({"imu", "mag"}), {})
+
+
+def _step(q: np.ndarray, b: np.ndarray, w_m: np.ndarray, dt: float) -> np.ndarray:
+    """SPEC 2.3's nominal step (numpy): [normalise(q * Exp((w_m - b) dt)); b]."""
+    qk = quat_mul(q, quat_exp((w_m - b) * dt))
+    return np.concatenate([qk / np.linalg.norm(qk), b])
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.2])
+@pytest.mark.parametrize("bias", [True, False], ids=["ekf7", "ekf"])
+def test_additive_prediction_is_spec_2_3(dt: float, bias: bool) -> None:
+    # core.predict._predict_add, which [ekf7], [ekf10] (gyro-bias state) and [ekf] (none)
+    # ship: q -> q * Exp((w_m - b) dt) = exp(Omega(dtheta)/2) q normalised, and with the
+    # noise off P -> D P D^T, D the Jacobian of that normalised step (SPEC 2.3's F with
+    # J_r, then the normalisation's J), by finite differences.
+    rng = np.random.default_rng(RNG_SEED + 4)
+    n = 7 if bias else 4
+    for _ in range(5):
+        st = _ekf7_state() if bias else _ekf_state()
+        st.prm[R_SG2] = st.prm[R_SB2] = 0.0
+        q = _unit(rng, 4) + np.array([2.0, 0.0, 0.0, 0.0])  # within ~60 deg of identity: no flip
+        q /= np.linalg.norm(q)
+        b = rng.normal(size=3) * 0.05 if bias else np.zeros(3)
+        w_m = rng.normal(size=3) * 3.0  # up to ~0.6 rad per step at dt = 0.2: J_r matters
+        A = rng.normal(size=(n, n))
+        P = A @ A.T
+        st.x[:4] = q
+        if bias:
+            st.x[4:7] = b
+        st.P[:n, :n] = P
+        _predict_add(st.cfg, st.prm, st.x, st.P, st.work, w_m[0], w_m[1], w_m[2], dt)
+        expected = _step(q, b, w_m, dt)
+        assert expected[0] > 0  # (no flip to w >= 0 in this case)
+        np.testing.assert_allclose(st.x[:n], expected[:n], atol=1e-14)
+        np.testing.assert_allclose(expm(0.5 * Omega((w_m - b) * dt)) @ q, expected[:4], atol=1e-13)
+        x0 = np.concatenate([q, b])[:n]
+        D = _fd_jacobian(lambda v, w_m=w_m: _step(v[:4], v[4:] if bias else np.zeros(3), w_m, dt)[:n], x0)
+        assert _rel_err(st.P[:n, :n], D @ P @ D.T) < 1e-6
+        np.testing.assert_array_equal(st.P, st.P.T)
 
 
 @pytest.mark.parametrize(("a", "spec_error"), [(1e-1, 2.6e-9), (3e-1, 6.3e-7)])
 def test_picard4_error_matches_spec_table(a: float, spec_error: float) -> None:
     """SPEC 2.2: ||Phi4 - Phi|| = 2.6e-9 at a = 0.1 rad and 6.3e-7 at 0.3 rad."""
     d = a * _unit(np.random.default_rng(RNG_SEED + 2), 3)
-    err = np.linalg.norm(transition_picard4(d) - transition_exact(d), 2)
+    err = np.linalg.norm(transition_picard4(d) - expm(0.5 * Omega(d)), 2)
     assert err == pytest.approx(spec_error, rel=0.03)
 
 
 def test_picard4_is_fifth_order() -> None:
     d = _unit(np.random.default_rng(RNG_SEED + 3), 3)
-    e1 = np.linalg.norm(transition_picard4(0.2 * d) - transition_exact(0.2 * d), 2)
-    e2 = np.linalg.norm(transition_picard4(0.1 * d) - transition_exact(0.1 * d), 2)
+    e1 = np.linalg.norm(transition_picard4(0.2 * d) - expm(0.1 * Omega(d)), 2)
+    e2 = np.linalg.norm(transition_picard4(0.1 * d) - expm(0.05 * Omega(d)), 2)
     assert np.log2(e1 / e2) == pytest.approx(5.0, abs=0.1)
-
-
-@pytest.mark.parametrize("dt", [0.005, 0.2])
-def test_ekf7_jacobian_matches_finite_differences(dt: float) -> None:
-    rng = np.random.default_rng(RNG_SEED + 4)
-    for _ in range(5):
-        q, b = _unit(rng, 4), rng.normal(size=3) * 0.05
-        w_m = rng.normal(size=3) * 3.0  # up to ~0.6 rad per step at dt = 0.2: J_r matters
-
-        def f(x: np.ndarray, w_m: np.ndarray = w_m) -> np.ndarray:
-            return np.concatenate([transition_exact((w_m - x[4:]) * dt) @ x[:4], x[4:]])
-
-        x = np.concatenate([q, b])
-        F = ekf7_jacobian(q, (w_m - b) * dt, dt)
-        F_fd = _fd_jacobian(f, x)
-        assert _rel_err(F[:4, :4], F_fd[:4, :4]) < 1e-6
-        assert _rel_err(F[:4, 4:], F_fd[:4, 4:]) < 1e-6
-        np.testing.assert_array_equal(F[4:], np.hstack([np.zeros((3, 4)), np.eye(3)]))
 
 
 def test_vector_obs_and_its_jacobian() -> None:
@@ -146,16 +173,14 @@ def test_vector_obs_and_its_jacobian() -> None:
         np.testing.assert_allclose(H @ q, 2.0 * vector_obs(q, r), atol=1e-12)
 
 
-def test_normalization_jacobian_matches_finite_differences() -> None:
-    q = np.random.default_rng(RNG_SEED + 6).normal(size=4)
-    J_fd = _fd_jacobian(lambda x: x / np.linalg.norm(x), q)
-    assert _rel_err(normalization_jacobian(q), J_fd) < 1e-6
-
-
-def test_process_noise_equals_van_loan_without_rotation() -> None:
-    """At w = 0, Q_d of SPEC 2.3 is the exact Van Loan integral (q constant over the step)."""
+@pytest.mark.parametrize("bias", [True, False], ids=["ekf7", "ekf"])
+def test_process_noise_equals_van_loan_without_rotation(bias: bool) -> None:
+    """At w = 0, Q_d of SPEC 2.3 (core.predict._noise_add, as the prediction adds it to a
+    zero P) is the exact Van Loan integral (q constant over the step); without a bias
+    state ([ekf]) its quaternion block with sigma_b = 0."""
     q = _unit(np.random.default_rng(RNG_SEED + 7), 4)
-    sg, sb, dt = 2e-3, 3e-4, 0.05
+    q *= np.sign(q[0])
+    sg, sb, dt = 2e-3, (3e-4 if bias else 0.0), 0.05
     F_c = np.zeros((7, 7))
     F_c[:4, 4:] = -0.5 * Xi(q)
     G = np.zeros((7, 6))
@@ -165,8 +190,16 @@ def test_process_noise_equals_van_loan_without_rotation() -> None:
     M = expm(np.block([[-F_c, GQG], [np.zeros((7, 7)), F_c.T]]) * dt)
     Phi = M[7:, 7:].T
     Q_vl = Phi @ M[:7, 7:]
-    Q = ekf7_process_noise(q, sg, sb, dt)
-    assert _rel_err(Q, Q_vl) < 1e-9
+    st = _ekf7_state() if bias else _ekf_state()
+    st.prm[R_SG2], st.prm[R_SB2] = sg**2, sb**2
+    st.x[:4] = q
+    st.P[:] = 0.0
+    b = np.full(3, 1e-3) if bias else np.zeros(3)
+    st.x[4:7] = b if bias else st.x[4:7]
+    _predict_add(st.cfg, st.prm, st.x, st.P, st.work, b[0], b[1], b[2], dt)  # w_m = b: no rotation
+    n = 7 if bias else 4
+    Q = st.P[:n, :n]
+    assert _rel_err(Q, Q_vl[:n, :n]) < 1e-9
     assert np.linalg.matrix_rank(Q[:4, :4], tol=1e-12 * np.abs(Q).max()) == 3
     np.testing.assert_allclose(Q[:4, :4] @ q, 0.0, atol=1e-20)
 
@@ -183,47 +216,82 @@ def test_attitude_covariance_maps() -> None:
     np.testing.assert_allclose(2.0 * Xi(q).T @ dq, dtheta, rtol=1e-4)
 
 
-@pytest.mark.parametrize("n", [4, 7])
-def test_normalize_state_projects_the_covariance(n: int) -> None:
+@pytest.mark.parametrize("state", [_ekf7_state, _ukf_state, _ekf_state], ids=["ekf7", "ukf", "ekf"])
+def test_normalisation_projects_the_covariance(state) -> None:
+    # core.predict._normalise_add, the additive filters' one normalisation: q <- q/|q|
+    # (w >= 0), P <- T P T^T with T = blkdiag(+-J, I), J = (I - u u^T)/|q| the Jacobian of
+    # q/|q| (by finite differences), the sign that of the flip.
+    st = state()
+    n = st.cfg[C_N]
     rng = np.random.default_rng(RNG_SEED + 9)
-    x = rng.normal(size=n)
-    x[0] = -abs(x[0])  # the sign flip to w >= 0
+    q = rng.normal(size=4)
+    q[0] = -abs(q[0])  # the sign flip to w >= 0
     A = rng.normal(size=(n, n))
     P = A @ A.T
-    x_in, P_in = x.copy(), P.copy()
-    J = np.eye(n)
-    J[:4, :4] = normalization_jacobian(x[:4])
-    np.testing.assert_allclose(project_normalization(P, x[:4]), J @ P @ J.T, rtol=1e-13, atol=1e-15)
-    x2, P2 = normalize_state(x, P)
-    np.testing.assert_allclose(x2[:4], -x[:4] / np.linalg.norm(x[:4]), rtol=1e-15)
-    np.testing.assert_array_equal(x2[4:], x[4:])
+    st.x[:4] = q
+    st.P[:n, :n] = P
+    rest = st.x[4:].copy()
+    _normalise_add(st.cfg, st.x, st.P, st.work, q[0], q[1], q[2], q[3])
+    J = _fd_jacobian(lambda v: v / np.linalg.norm(v), q)
+    u = q / np.linalg.norm(q)
+    np.testing.assert_allclose(J, (np.eye(4) - np.outer(u, u)) / np.linalg.norm(q), atol=1e-8)
+    np.testing.assert_allclose(st.x[:4], -u, rtol=1e-15)
+    np.testing.assert_array_equal(st.x[4:], rest)
     # x2 = T x with T = blkdiag(-J, I) to first order (the flip to w >= 0 negates q): the
     # quaternion block is J P J^T, its covariance with the bias changes sign.
-    T = J.copy()
-    T[:4, :4] *= -1.0
-    np.testing.assert_allclose(P2, T @ P @ T.T, rtol=1e-12, atol=1e-15)
-    np.testing.assert_array_equal(P2, P2.T)
-    np.testing.assert_allclose(P2[:4, :4] @ x2[:4], 0.0, atol=1e-12)  # nothing along q
-    np.testing.assert_array_equal(x, x_in)  # arguments untouched: new arrays returned
-    np.testing.assert_array_equal(P, P_in)
+    T = np.eye(n)
+    T[:4, :4] = -(np.eye(4) - np.outer(u, u)) / np.linalg.norm(q)
+    np.testing.assert_allclose(st.P[:n, :n], T @ P @ T.T, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(st.P, st.P.T)
+    np.testing.assert_allclose(st.P[:4, :4] @ st.x[:4], 0.0, atol=1e-12)  # nothing along q
 
 
-def test_kalman_update_is_the_joseph_form() -> None:
-    rng = np.random.default_rng(RNG_SEED + 10)
-    n, m = 7, 3
-    x, nu = rng.normal(size=n), rng.normal(size=m)
-    A, B = rng.normal(size=(n, n)), rng.normal(size=(m, m))
-    P, R = A @ A.T, B @ B.T + np.eye(m)
-    H = rng.normal(size=(m, n))
-    P_in = P.copy()
-    x2, P2, nis = kalman_update(x, P, H, nu, R)
+def _joseph(x: np.ndarray, P: np.ndarray, H: np.ndarray, nu: np.ndarray, R: np.ndarray):
+    """Textbook EKF update: x + K nu, (I - K H) P (I - K H)^T + K R K^T, the NIS."""
     S = H @ P @ H.T + R
     K = P @ H.T @ np.linalg.inv(S)
-    I_KH = np.eye(n) - K @ H
-    np.testing.assert_allclose(x2, x + K @ nu, rtol=1e-12)
-    np.testing.assert_allclose(P2, I_KH @ P @ I_KH.T + K @ R @ K.T, rtol=1e-10, atol=1e-12)
-    assert nis == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-12)
-    np.testing.assert_array_equal(P, P_in)
+    I_KH = np.eye(len(x)) - K @ H
+    return x + K @ nu, I_KH @ P @ I_KH.T + K @ R @ K.T, float(nu @ np.linalg.solve(S, nu))
+
+
+def test_the_one_update_on_the_quaternion_columns_is_the_joseph_form() -> None:
+    # The paper's filters give H (3, 4) on q's parameters to the core's one update
+    # (core.kalman._fuse): the Joseph form, then q <- q/|q| (w >= 0), P <- J P J^T.
+    rng = np.random.default_rng(RNG_SEED + 10)
+    st = _ekf_state()
+    q = _unit(rng, 4) * 1.3
+    q[0] = -abs(q[0])  # the flip to w >= 0 after the update
+    A, B = rng.normal(size=(4, 4)), rng.normal(size=(3, 3))
+    P, R = A @ A.T, B @ B.T + np.eye(3)
+    H, nu = rng.normal(size=(3, 4)), rng.normal(size=3)
+    st.x[:] = q
+    st.P[:, :] = P
+    st.work[W_HQ : W_HQ + 3, :4] = H
+    st.work[W_NU, :3] = nu
+    st.work[W_R : W_R + 3, :3] = R
+    args = (st.cfg, st.x, st.flags, st.P, st.work, st.sup, st.inn, st.acc)
+    assert _fuse(*args, np.int64(INN_MAG), 0.25, np.int64(3), np.int64(4), np.inf)
+    x2, P2, nis = _joseph(q, P, H, nu, R)
+    u = x2 / np.linalg.norm(x2)
+    J = -(np.eye(4) - np.outer(u, u)) / np.linalg.norm(x2)  # the sign of the flip included
+    np.testing.assert_allclose(st.x, -u, rtol=1e-12)
+    np.testing.assert_allclose(st.P, J @ P2 @ J.T, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(st.P, st.P.T)
+    np.testing.assert_allclose(st.P @ st.x, 0.0, atol=1e-12)  # nothing along q
+    # logged: t, nu, the NIS, accepted
+    log = read_logs(st.cfg, st.flags, st.inn, st.acc)
+    assert list(log) == ["mag"]
+    np.testing.assert_array_equal(log["mag"].t, [0.25])
+    np.testing.assert_array_equal(log["mag"].nu, [nu])
+    assert log["mag"].nis[0] == pytest.approx(nis, rel=1e-12)
+    assert log["mag"].accepted.tolist() == [True]
+    # a finite gate rejects an innovation beyond it: logged, not fused
+    x_in, P_in = st.x.copy(), st.P.copy()
+    st.work[W_NU, :3] = [1e3, 0.0, 0.0]
+    assert not _fuse(*args, np.int64(INN_MAG), 0.5, np.int64(3), np.int64(4), 9.0)
+    np.testing.assert_array_equal(st.x, x_in)
+    np.testing.assert_array_equal(st.P, P_in)
+    assert read_logs(st.cfg, st.flags, st.inn, st.acc)["mag"].accepted.tolist() == [True, False]
 
 
 def test_unscented_update_equals_the_kalman_update_on_a_linear_model() -> None:
@@ -240,7 +308,7 @@ def test_unscented_update_equals_the_kalman_update_on_a_linear_model() -> None:
     np.testing.assert_allclose(x_ut, x, atol=1e-12)
     np.testing.assert_allclose(P_ut, P, rtol=1e-10, atol=1e-12)
     x_u, P_u, nu, nis_u = ut_update(x, P, X, X @ H.T, z, R, wm, wc)
-    x_k, P_k, nis_k = kalman_update(x, P, H, z - H @ x, R)
+    x_k, P_k, nis_k = _joseph(x, P, H, z - H @ x, R)
     np.testing.assert_allclose(nu, z - H @ x, atol=1e-12)
     np.testing.assert_allclose(x_u, x_k, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(P_u, P_k, rtol=1e-8, atol=1e-10)
@@ -291,9 +359,12 @@ def test_psd_root_of_a_singular_covariance() -> None:
     rng = np.random.default_rng(RNG_SEED + 13)
     q = _unit(rng, 4)
     P = _ukf_like_covariance(q, np.linalg.qr(rng.normal(size=(3, 3)))[0])
-    # the normalisation projection: singular along q to within rounding, pivots of
-    # either sign at the 1e-20 level
-    P = project_normalization(P, q)
+    # the normalisation projection (the UKF's, core.predict._normalise_add): singular
+    # along q to within rounding, pivots of either sign at the 1e-20 level
+    st = _ukf_state()
+    st.x[:4], st.P[:, :] = q, P
+    _normalise_add(st.cfg, st.x, st.P, st.work, q[0], q[1], q[2], q[3])
+    P = st.P.copy()
     L = psd_root(P)
     assert np.all(np.isfinite(L))
     np.testing.assert_array_equal(L, np.tril(L))

@@ -1,14 +1,15 @@
-"""Dense Kalman machinery in numba: one Joseph-form EKF update and one set of
-unscented-transform functions, shared by the additive-quaternion filters (paper,
-paper-nowind, ekf, ukf).
+"""Dense unscented machinery in numba: the unscented transform of the additive UKF
+([ukf]), the one unscented gain step that [ukf] and [usque] share, and the paper's dense
+covariance propagation ``Phi P Phi^T + Q``.
+The EKFs' update is the one Kalman update of the compiled core (``core.kalman._fuse``).
 
 States are (n,) float64 arrays, covariances (n, n), measurements (m,) with noise R (m, m);
-every function returns new arrays and leaves its arguments alone. The EKF update is
-written in plain loops (n <= 7, m = 3: no BLAS call per sample), inverting the innovation
-covariance by Cholesky (it is symmetric positive definite). The unscented functions are
-plain loops too; their sigma points come from an LDL^T root (:func:`psd_root`), a function
-of the covariance alone: the symmetric-eigen root it replaced depended, for the UKF's
-isotropic P0, on which eigenvectors LAPACK picked within a repeated eigenvalue.
+every function but :func:`unscented_gain` returns new arrays and leaves its arguments
+alone. The functions are plain loops (n <= 7, m = 3: no BLAS or LAPACK call per sample),
+inverting the innovation covariance by Cholesky (it is symmetric positive definite); the
+sigma points come from an LDL^T root (:func:`psd_root`), a function of the covariance
+alone: the symmetric-eigen root it replaced depended, for the UKF's isotropic P0, on
+which eigenvectors LAPACK picked within a repeated eigenvalue.
 With ``NUMBA_DISABLE_JIT=1`` the same source runs as plain Python.
 """
 
@@ -22,8 +23,6 @@ from numba import njit
 
 __all__ = [
     "PIVOT_RTOL",
-    "kalman_update",
-    "project_leading",
     "propagate_cov",
     "psd_root",
     "sigma_points",
@@ -79,56 +78,6 @@ def _quad(nu, Si):
         for j in range(m):
             s += nu[i] * Si[i, j] * nu[j]
     return s
-
-
-@njit(**_JIT)
-def kalman_update(x, P, H, nu, R):
-    """EKF update with the innovation nu (m,) = z - h(x), Jacobian H (m, n), noise R (m, m).
-
-    Joseph form ``P+ = (I - K H) P (I - K H)^T + K R K^T``, ``K = P H^T S^-1``,
-    ``S = H P H^T + R``, evaluated expanded as ``P + K G^T + G K^T`` with ``U = P H^T``,
-    ``G = K S / 2 - U`` (the same matrix, exactly symmetric in floating point, no n x n
-    temporaries). Returns (x+ (n,), P+ (n, n), NIS ``nu^T S^-1 nu``)."""
-    n, m = x.shape[0], nu.shape[0]
-    U = np.empty((n, m))  # P H^T
-    for i in range(n):
-        for a in range(m):
-            s = 0.0
-            for k in range(n):
-                s += P[i, k] * H[a, k]
-            U[i, a] = s
-    S = np.empty((m, m))
-    for a in range(m):
-        for b in range(m):
-            s = 0.0
-            for k in range(n):
-                s += H[a, k] * U[k, b]
-            S[a, b] = s + R[a, b]
-    Si = spd_inverse(S)
-    K = np.empty((n, m))
-    G = np.empty((n, m))
-    x2 = x.copy()
-    for i in range(n):
-        for a in range(m):
-            s = 0.0
-            for b in range(m):
-                s += U[i, b] * Si[b, a]
-            K[i, a] = s
-        for a in range(m):
-            s = 0.0
-            for b in range(m):
-                s += K[i, b] * S[b, a]
-            G[i, a] = 0.5 * s - U[i, a]
-            x2[i] += K[i, a] * nu[a]
-    P2 = np.empty((n, n))
-    for i in range(n):
-        for j in range(i, n):
-            s = 0.0
-            for a in range(m):
-                s += K[i, a] * G[j, a] + G[i, a] * K[j, a]
-            P2[i, j] = P[i, j] + s
-            P2[j, i] = P[j, i] + s
-    return x2, P2, _quad(nu, Si)
 
 
 @njit(**_JIT)
@@ -249,9 +198,20 @@ def _weighted_cross(wc, X, x, Y, y):
 
 @njit(**_JIT)
 def ut_mean_cov(X, wm, wc):
-    """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n)."""
+    """Weighted mean (n,) and covariance (n, n) of the points X (2n+1, n); the covariance
+    is exactly symmetric (each entry above the diagonal summed once and mirrored)."""
     x = _weighted_mean(X, wm)
-    return x, _weighted_cross(wc, X, x, X, x)
+    npts, n = X.shape
+    C = np.zeros((n, n))
+    for p in range(npts):
+        for i in range(n):
+            a = wc[p] * (X[p, i] - x[i])
+            for j in range(i, n):
+                C[i, j] += a * (X[p, j] - x[j])
+    for i in range(n):
+        for j in range(i):
+            C[i, j] = C[j, i]
+    return x, C
 
 
 @njit(**_JIT)
@@ -297,29 +257,6 @@ def ut_update(x, P, X, Y, z, R, wm, wc):
     P2 = P.copy()
     unscented_gain(P2, Pxy, Si, nu, K, dx, n, m)
     return x + dx, P2, nu, _quad(nu, Si)
-
-
-@njit(**_JIT)
-def project_leading(P, J):
-    """``T P T^T`` (n, n) for ``T = blkdiag(J, I)``, J (k, k) acting on the first k of
-    the n states (the normalisation Jacobian of a leading quaternion): only the first k
-    rows and columns change. Plain loops; returns a new array."""
-    n, k = P.shape[0], J.shape[0]
-    A = P.copy()  # T P: the first k rows
-    for i in range(k):
-        for j in range(n):
-            s = 0.0
-            for a in range(k):
-                s += J[i, a] * P[a, j]
-            A[i, j] = s
-    out = A.copy()  # (T P) T^T: the first k columns
-    for i in range(n):
-        for j in range(k):
-            s = 0.0
-            for a in range(k):
-                s += A[i, a] * J[j, a]
-            out[i, j] = s
-    return out
 
 
 @njit(**_JIT)

@@ -1,13 +1,19 @@
-"""The one Kalman update of the error-state and additive EKFs, with its gate and its log.
+"""The one Kalman update of every EKF (error-state, additive [ekf7]/[ekf10], and the
+paper's [paper], [paper-nowind], [ekf]), with its gate and its innovation log.
 
 :func:`_fuse` computes the NIS, gates each component at ``gate`` sigmas (the innovation
 test ratio ``nu_k^2 / (gate^2 S_kk)`` of PX4's EKF2), logs the innovation, and applies the
 Joseph-form update, evaluated expanded as ``P + K G^T + G K^T`` with ``U = P H^T`` and
 ``G = K S / 2 - U`` (algebraically ``(I - K H) P (I - K H)^T + K R K^T``, exactly symmetric
 in floating point), then injects the correction into the nominal state. An update with m
-rows (1 or 3) whose Jacobian touches c columns costs O(n c m + n^2 m). Every aid source
+rows (1, 2 or 3) whose Jacobian touches c columns costs O(n c m + n^2 m). Every aid source
 (windahrs.aid) fills ``nu``, ``H`` on its support columns and ``R`` in the scratch rows and
-calls it.
+calls it; so does the paper's filters' vector update (windahrs.filters.additive), with H
+on the quaternion's four parameters.
+
+The innovation log is one block of rows per sensor (``core.layout.AID_LOGS``); the Python
+side lays it out (:func:`log_layout`), grows it for a streamer (:func:`grown_logs`) and
+reads it back as Estimate innovations (:func:`read_logs`).
 """
 
 from __future__ import annotations
@@ -16,9 +22,13 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from windahrs.core.layout import (
     _JIT,
+    ADD_ATT,
+    ADD_COV,
+    ADD_NONE,
     C_ADD,
     C_CAP,
     C_IBA,
@@ -28,9 +38,15 @@ from windahrs.core.layout import (
     C_IW,
     C_N,
     C_OFF,
+    F64,
+    I64,
+    INN_RESET,
     L_CNT,
     L_FIRST,
+    N_SENSORS,
     S_SEQ,
+    SENSOR_ROWS,
+    SENSORS,
     W_DX,
     W_G,
     W_H,
@@ -56,6 +72,7 @@ from windahrs.core.quat import (
     _qmul,
     _qnormalize,
 )
+from windahrs.estimate import Innovations
 
 
 @njit(inline="always", **_JIT)
@@ -75,6 +92,63 @@ def _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted):
     acc[row] = accepted
     flags[L_CNT + sensor] = c + 1
 
+
+
+def log_layout(cfg: I64, caps: I64) -> int:
+    """Lay the logs out in cfg: caps (N_SENSORS,) rows for each sensor, one block after
+    the other. Returns the rows in all."""
+    cfg[C_CAP : C_CAP + N_SENSORS] = caps
+    cfg[C_OFF : C_OFF + N_SENSORS] = np.concatenate([[0], np.cumsum(caps)[:-1]])
+    return int(caps.sum())
+
+
+def grown_logs(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) -> tuple[I64, F64, NDArray[np.bool_]]:
+    """(cfg, inn, acc) with twice the rows for every full sensor log, the rows logged so
+    far copied (new arrays; the arguments are left alone)."""
+    cnt = flags[L_CNT : L_CNT + N_SENSORS]
+    caps = cfg[C_CAP : C_CAP + N_SENSORS].copy()
+    caps[cnt >= caps] *= 2
+    cfg2 = cfg.copy()
+    total = log_layout(cfg2, caps)
+    inn2, acc2 = np.empty((total, 5)), np.zeros(total, dtype=np.bool_)
+    for s in range(N_SENSORS):
+        o, c, o2 = int(cfg[C_OFF + s]), int(cnt[s]), int(cfg2[C_OFF + s])
+        inn2[o2 : o2 + c] = inn[o : o + c]
+        acc2[o2 : o2 + c] = acc[o : o + c]
+    return cfg2, inn2, acc2
+
+
+def read_logs(
+    cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_], *, heading: bool = False
+) -> dict[str, Innovations]:
+    """The logs as Estimate innovations, keyed in the order sensors first logged (the reset
+    log is not one: ``Estimate.resets``); heading: the magnetometer was fused as a heading
+    (1 row)."""
+    cnt, first = flags[L_CNT : L_CNT + N_SENSORS], flags[L_FIRST : L_FIRST + N_SENSORS]
+    out: dict[str, Innovations] = {}
+    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0 and s != INN_RESET), key=lambda s: int(first[s])):
+        o, c = int(cfg[C_OFF + s]), int(cnt[s])
+        name = SENSORS[s]
+        rows = 1 if name == "mag" and heading else SENSOR_ROWS[s]
+        out[name] = Innovations(
+            t=inn[o : o + c, 0].copy(),
+            nu=inn[o : o + c, 1 : 1 + rows].copy(),
+            nis=inn[o : o + c, 4].copy(),
+            accepted=acc[o : o + c].copy(),
+        )
+    return out
+
+
+def read_resets(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
+    """The reset log (windahrs.core.reset) as ``Estimate.resets``: per sensor key, (K, 3)
+    rows [t s, size, how long the sensor had disagreed s]."""
+    o, c = int(cfg[C_OFF + INN_RESET]), int(flags[L_CNT + INN_RESET])
+    rows = inn[o : o + c]
+    out: dict[str, F64] = {}
+    for s in np.unique(rows[:, 1]).astype(int):
+        mine = rows[rows[:, 1] == s]
+        out[SENSORS[s]] = np.column_stack([mine[:, 0], mine[:, 2], mine[:, 3]])
+    return out
 
 
 @njit(**_JIT)
@@ -128,16 +202,21 @@ def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
 def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     """The Kalman update of the error-state and additive EKFs: NIS, gate, log, Joseph update, injection.
 
-    The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m], H = work[W_H:W_H+m]
-    on the error-state columns sup[0, :nsup] (the attitude columns 0..2 always written);
-    m is 1, 2 or 3. Returns whether the update was accepted.
+    The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m] and H, by the form
+    cfg[C_ADD]: the error state and [ekf7], [ekf10] (ADD_NONE, ADD_ATT) give H =
+    work[W_H:W_H+m] on the error-state columns sups[0, :nsup] (the attitude columns 0..2
+    always written), mapped here to the quaternion's four columns for the additive form;
+    the paper's filters (ADD_COV) give it on the covariance's own columns, H =
+    work[W_HQ:W_HQ+m] on sups[1, :nsup]. m is 1, 2 or 3. The additive forms add the
+    correction to the quaternion's parameters and normalise (``_normalise_add``).
+    Returns whether the update was accepted.
 
     Loops run over whole padded rows of P (whole SIMD lanes) with every row of the
     measurement in one pass, which lets the compiler vectorise them."""
     n = cfg[C_N]
     H, sup = work[W_H : W_H + 3], sups[0]
     Hm, cols, nc = H, sup, nsup
-    if cfg[C_ADD] == 1:
+    if cfg[C_ADD] == ADD_ATT:
         Hq = work[W_HQ : W_HQ + 3]
         cols = sups[1]
         q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
@@ -158,6 +237,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 for k in range(m):
                     Hq[k, c + 1] = H[k, c]
         Hm = Hq
+    elif cfg[C_ADD] == ADD_COV:
+        Hm, cols = work[W_HQ : W_HQ + 3], sups[1]
     U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
     R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
     nu, dx = work[W_NU], work[W_DX]
@@ -246,10 +327,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             for j in range(P.shape[1]):
                 P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
-    if cfg[C_ADD] == 1:
-        for a in range(3):
-            x[X_BG + a] += dx[ib + 1 + a]
-            if iw >= 0:
+    if cfg[C_ADD] != ADD_NONE:
+        if ib >= 0:
+            for a in range(3):
+                x[X_BG + a] += dx[ib + 1 + a]
+        if iw >= 0:
+            for a in range(3):
                 x[X_W + a] += dx[iw + 1 + a]
         _normalise_add(
             cfg, x, P, work, x[X_Q] + dx[0], x[X_Q + 1] + dx[1], x[X_Q + 2] + dx[2], x[X_Q + 3] + dx[3]

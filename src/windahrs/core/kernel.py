@@ -46,6 +46,7 @@ from windahrs.aid.tas import (
     fuse_tas,
 )
 from windahrs.core.events import sample_ok
+from windahrs.core.kalman import grown_logs, log_layout, read_logs, read_resets
 from windahrs.core.layout import (
     _JIT,
     AIR_AIRSPEED,
@@ -72,7 +73,6 @@ from windahrs.core.layout import (
     C_KIND,
     C_MAG,
     C_N,
-    C_OFF,
     C_SITE_MAG,
     C_SYN,
     C_WAIT_GNSS,
@@ -82,7 +82,6 @@ from windahrs.core.layout import (
     COMP_NONE,
     F64,
     I64,
-    INN_RESET,
     K_SKIP,
     KIND_INS,
     KIND_MEKF,
@@ -154,9 +153,7 @@ from windahrs.core.layout import (
     S_VGNSS,
     S_WIN,
     S_WPEND,
-    SENSOR_ROWS,
     SENSOR_STREAMS,
-    SENSORS,
     W_M,
     X_BA,
     X_BG,
@@ -586,12 +583,6 @@ def _vec(a: Any, n: int, name: str) -> F64:
     return v
 
 
-def _log_layout(cfg: I64, caps: I64) -> int:
-    cfg[C_CAP : C_CAP + N_SENSORS] = caps
-    cfg[C_OFF : C_OFF + N_SENSORS] = np.concatenate([[0], np.cumsum(caps)[:-1]])
-    return int(caps.sum())
-
-
 def make_state(
     kind: Kind,
     additive: bool,
@@ -643,7 +634,7 @@ def make_state(
     cfg[C_IBM] = L.sl("bm").start if L.has("bm") else -1
     cfg[C_DIM] = dim
     cfg[C_N] = n
-    total = _log_layout(cfg, np.asarray(caps, dtype=np.int64))
+    total = log_layout(cfg, np.asarray(caps, dtype=np.int64))
     n_pad = -(-n // PAD) * PAD  # the covariance's rows and columns, padded
 
     def sig(given: float | None, default: float) -> float:
@@ -721,44 +712,17 @@ def make_state(
 
 def _innovations(st: KernelState, mag_mode: str) -> dict[str, Innovations]:
     """The logs as Estimate innovations, keyed in the order sensors first logged."""
-    cnt, first = st.flags[L_CNT : L_CNT + N_SENSORS], st.flags[L_FIRST : L_FIRST + N_SENSORS]
-    out: dict[str, Innovations] = {}
-    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0 and s != INN_RESET), key=lambda s: int(first[s])):
-        o, c = int(st.cfg[C_OFF + s]), int(cnt[s])
-        name = SENSORS[s]
-        rows = 1 if name == "mag" and mag_mode == "heading" else SENSOR_ROWS[s]
-        out[name] = Innovations(
-            t=st.inn[o : o + c, 0].copy(),
-            nu=st.inn[o : o + c, 1 : 1 + rows].copy(),
-            nis=st.inn[o : o + c, 4].copy(),
-            accepted=st.acc[o : o + c].copy(),
-        )
-    return out
+    return read_logs(st.cfg, st.flags, st.inn, st.acc, heading=mag_mode == "heading")
 
 
 def _resets(st: KernelState) -> dict[str, F64]:
-    """The reset log as ``Estimate.resets``: per sensor key, (K, 3) rows [t, size, out for]."""
-    o, c = int(st.cfg[C_OFF + INN_RESET]), int(st.flags[L_CNT + INN_RESET])
-    rows = st.inn[o : o + c]
-    out: dict[str, F64] = {}
-    for s in np.unique(rows[:, 1]).astype(int):
-        mine = rows[rows[:, 1] == s]
-        out[SENSORS[s]] = np.column_stack([mine[:, 0], mine[:, 2], mine[:, 3]])
-    return out
+    """The reset log as ``Estimate.resets`` (:func:`windahrs.core.kalman.read_resets`)."""
+    return read_resets(st.cfg, st.flags, st.inn)
 
 
 def _grow(st: KernelState) -> KernelState:
     """The same state with twice the log capacity for every full sensor log."""
-    cnt = st.flags[L_CNT : L_CNT + N_SENSORS]
-    caps = st.cfg[C_CAP : C_CAP + N_SENSORS].copy()
-    caps[cnt >= caps] *= 2
-    cfg = st.cfg.copy()
-    total = _log_layout(cfg, caps)
-    inn, acc = np.empty((total, 5)), np.zeros(total, dtype=np.bool_)
-    for s in range(N_SENSORS):
-        o, c, o2 = int(st.cfg[C_OFF + s]), int(cnt[s]), int(cfg[C_OFF + s])
-        inn[o2 : o2 + c] = st.inn[o : o + c]
-        acc[o2 : o2 + c] = st.acc[o : o + c]
+    cfg, inn, acc = grown_logs(st.cfg, st.flags, st.inn, st.acc)
     return st._replace(cfg=cfg, inn=inn, acc=acc)
 
 

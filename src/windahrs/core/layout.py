@@ -30,6 +30,12 @@ _JIT_FMA: dict[str, Any] = {**_JIT, "fastmath": {"contract"}}
 NMAX = 19
 
 KIND_MEKF, KIND_MEKF_AIR, KIND_INS = 0, 1, 2
+#: The form of the state, cfg[C_ADD]: the error state; the additive quaternion with the
+#: aid sources' Jacobians on the error state (attitude columns mapped to the quaternion's
+#: by the one update, [ekf7], [ekf10]); the additive quaternion with the Jacobians given on
+#: the covariance's own columns (the paper's filters, whose Jacobians are on the
+#: quaternion's four parameters: windahrs.filters.additive).
+ADD_NONE, ADD_ATT, ADD_COV = 0, 1, 2
 COMP_NONE, COMP_GNSS, COMP_AIRSPEED = 0, 1, 2
 MAG_3D, MAG_HEADING, MAG_OFF = 0, 1, 2
 AIR_AUTO, AIR_VECTOR, AIR_AIRSPEED, AIR_OFF = 0, 1, 2, 3
@@ -63,7 +69,7 @@ INN_RESET = SENSORS.index("reset")
 
 # cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
 C_KIND = 0  # KIND_*
-C_ADD = 1  # 1: additive quaternion (ekf7/ekf10)
+C_ADD = 1  # ADD_*: 0 error state; 1 additive quaternion (ekf7/ekf10); 2 additive, H given on P's columns
 C_COMP = 2  # accelerometer compensation, COMP_* (mekf-air: always airspeed)
 C_MAG = 3  # MAG_*
 C_AIR = 4  # AIR_*

@@ -1,7 +1,7 @@
 """The process models of the compiled core: the error-state prediction (attitude, gyro bias,
 velocity, wind, accelerometer and magnetometer biases; SPEC 2.4, 2.5) and the additive
 quaternion prediction of [ekf7] and [ekf10] (SPEC 2.3), with the normalisation that
-projects the covariance.
+projects the covariance (which the paper's filters, windahrs.filters.additive, use too).
 
 The transition matrix is the identity except a few 3x3 blocks in the attitude (and
 velocity) rows, so each prediction rewrites only those rows and columns of P (O(n) work
@@ -235,7 +235,11 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
 
 @njit(**_JIT)
 def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
-    """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T, symmetrised."""
+    """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T with
+    J = blkdiag(+-(I - u u^T)/|q|, I), u = q/|q| (the sign of the flip to w >= 0 in J:
+    the quaternion's covariance with the other states changes sign), the quaternion block
+    symmetrised. (q0..q3): the quaternion before; P (n, n), n = cfg[C_N], the quaternion
+    in its first four rows; in place."""
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     n = cfg[C_N]
     nq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
@@ -271,16 +275,48 @@ def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = sign * u[0], sign * u[1], sign * u[2], sign * u[3]
 
 
+@njit(inline="always", **_JIT_FMA)
+def _noise_add(cfg, prm, P, Xi, dt):
+    """SPEC 2.3's discrete process noise of the additive state ``[q; b_g (; W)]`` added to
+    P (n, n), n = cfg[C_N]: ``(sg2 dt/4 + sb2 dt^3/12) Xi Xi^T`` on the quaternion,
+    ``-sb2 dt^2/4 Xi`` with the gyro bias, ``sb2 dt I`` on it, the wind's random walk;
+    Xi (4, 3) = Xi(q_k). A state without gyro bias (cfg[C_IBG] < 0, [ekf]) has the
+    quaternion block alone (sb2 = 0). Shared by :func:`_predict_add` and the additive UKF."""
+    sg2, sb2 = prm[R_SG2], prm[R_SB2]
+    ib = cfg[C_IBG] + 1 if cfg[C_IBG] >= 0 else -1
+    iw = cfg[C_IW] + 1 if cfg[C_IW] >= 0 else -1
+    cqq = sg2 * dt / 4.0 + sb2 * dt**3 / 12.0
+    cqb = -sb2 * dt**2 / 4.0
+    for r in range(4):
+        for c in range(4):
+            P[r, c] += cqq * (Xi[r, 0] * Xi[c, 0] + Xi[r, 1] * Xi[c, 1] + Xi[r, 2] * Xi[c, 2])
+        if ib > 0:
+            for k in range(3):
+                P[r, ib + k] += cqb * Xi[r, k]
+                P[ib + k, r] += cqb * Xi[r, k]
+    if ib > 0:
+        for k in range(3):
+            P[ib + k, ib + k] += sb2 * dt
+    if iw >= 0:
+        P[iw, iw] += prm[R_WH2] * dt
+        P[iw + 1, iw + 1] += prm[R_WH2] * dt
+        P[iw + 2, iw + 2] += prm[R_WV2] * dt
+
+
 @njit(**_JIT_FMA)
 def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
-    """The additive prediction of [ekf7], [ekf10]: F = [[Phi4, -(dt/2) Xi(q_k) J_r], [0, I]], Q of SPEC 2.3."""
+    """The additive prediction (SPEC 2.3) of [ekf7], [ekf10] and [ekf]: the exact transition
+    ``q_k = Phi(dtheta) q``, ``dtheta = (w_m - b) dt``, F = [[Phi, -(dt/2) Xi(q_k) J_r], [0, I]],
+    Q of :func:`_noise_add`, then the normalisation. Without a gyro-bias state
+    (cfg[C_IBG] < 0: [ekf], the 4-state EKF) dtheta = w_m dt and F = Phi."""
     M, X, Xi = work[W_M : W_M + 4], work[W_X : W_X + 8], work[W_M + 4 : W_M + 8]
     Jr, K = work[W_T : W_T + 3, 0:3], work[W_T + 3 : W_T + 6, 0:3]
     Fqb = work[W_T + 6 : W_T + 10, 0:3]  # 4x3 (borrows a row of the next matrix)
     n = cfg[C_N]
-    ib = cfg[C_IBG] + 1
-    iw = cfg[C_IW] + 1 if cfg[C_IW] >= 0 else -1
-    dx, dy, dz = (wmx - x[X_BG]) * dt, (wmy - x[X_BG + 1]) * dt, (wmz - x[X_BG + 2]) * dt
+    ib = cfg[C_IBG] + 1 if cfg[C_IBG] >= 0 else -1
+    dx, dy, dz = wmx * dt, wmy * dt, wmz * dt
+    if ib > 0:
+        dx, dy, dz = (wmx - x[X_BG]) * dt, (wmy - x[X_BG + 1]) * dt, (wmz - x[X_BG + 2]) * dt
     a = math.sqrt(dx * dx + dy * dy + dz * dz)
     s = 0.5 * _sinc(a / (2.0 * math.pi))
     ch = math.cos(0.5 * a)
@@ -296,41 +332,48 @@ def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
         X[6, 0] * p0 + X[6, 1] * p1 + X[6, 2] * p2 + X[6, 3] * p3,
         X[7, 0] * p0 + X[7, 1] * p1 + X[7, 2] * p2 + X[7, 3] * p3,
     )
-    # right Jacobian of the increment (rotation.right_jacobian)
-    if a < 1e-5:
-        c1 = 0.5 - a**2 / 24.0
-        c2 = 1.0 / 6.0 - a**2 / 120.0
-    else:
-        c1 = (1.0 - math.cos(a)) / a**2
-        c2 = (a - math.sin(a)) / a**3
-    K[0, 0], K[0, 1], K[0, 2] = 0.0, -dz, dy
-    K[1, 0], K[1, 1], K[1, 2] = dz, 0.0, -dx
-    K[2, 0], K[2, 1], K[2, 2] = -dy, dx, 0.0
-    for r in range(3):
-        for c in range(3):
-            k2 = K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c]
-            Jr[r, c] = (1.0 if r == c else 0.0) - c1 * K[r, c] + c2 * k2
     _xi_into(qk[0], qk[1], qk[2], qk[3], Xi)
-    h = -0.5 * dt
-    for r in range(4):
-        for c in range(3):
-            Fqb[r, c] = h * Xi[r, 0] * Jr[0, c] + h * Xi[r, 1] * Jr[1, c] + h * Xi[r, 2] * Jr[2, c]
-    # M = quaternion rows of F P
-    for r in range(4):
-        f0, f1, f2, f3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
-        g0, g1, g2 = Fqb[r, 0], Fqb[r, 1], Fqb[r, 2]
-        for j in range(P.shape[1]):
-            M[r, j] = (
-                f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
-                + g0 * P[ib, j] + g1 * P[ib + 1, j] + g2 * P[ib + 2, j]
-            )  # fmt: skip
+    if ib > 0:
+        # right Jacobian of the increment (rotation.right_jacobian)
+        if a < 1e-5:
+            c1 = 0.5 - a**2 / 24.0
+            c2 = 1.0 / 6.0 - a**2 / 120.0
+        else:
+            c1 = (1.0 - math.cos(a)) / a**2
+            c2 = (a - math.sin(a)) / a**3
+        K[0, 0], K[0, 1], K[0, 2] = 0.0, -dz, dy
+        K[1, 0], K[1, 1], K[1, 2] = dz, 0.0, -dx
+        K[2, 0], K[2, 1], K[2, 2] = -dy, dx, 0.0
+        for r in range(3):
+            for c in range(3):
+                k2 = K[r, 0] * K[0, c] + K[r, 1] * K[1, c] + K[r, 2] * K[2, c]
+                Jr[r, c] = (1.0 if r == c else 0.0) - c1 * K[r, c] + c2 * k2
+        h = -0.5 * dt
+        for r in range(4):
+            for c in range(3):
+                Fqb[r, c] = h * Xi[r, 0] * Jr[0, c] + h * Xi[r, 1] * Jr[1, c] + h * Xi[r, 2] * Jr[2, c]
+        # M = quaternion rows of F P
+        for r in range(4):
+            f0, f1, f2, f3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
+            g0, g1, g2 = Fqb[r, 0], Fqb[r, 1], Fqb[r, 2]
+            for j in range(P.shape[1]):
+                M[r, j] = (
+                    f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
+                    + g0 * P[ib, j] + g1 * P[ib + 1, j] + g2 * P[ib + 2, j]
+                )  # fmt: skip
+    else:
+        for r in range(4):
+            f0, f1, f2, f3 = X[4 + r, 0], X[4 + r, 1], X[4 + r, 2], X[4 + r, 3]
+            for j in range(P.shape[1]):
+                M[r, j] = f0 * P[0, j] + f1 * P[1, j] + f2 * P[2, j] + f3 * P[3, j]
     for r in range(4):
         for c in range(4):
             v = 0.0
             for k in range(4):
                 v += M[r, k] * X[4 + c, k]
-            for k in range(3):
-                v += M[r, ib + k] * Fqb[c, k]
+            if ib > 0:
+                for k in range(3):
+                    v += M[r, ib + k] * Fqb[c, k]
             X[r, c] = v
     for r in range(4):
         for j in range(4, n):
@@ -338,22 +381,7 @@ def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
             P[j, r] = M[r, j]
         for c in range(4):
             P[r, c] = X[r, c]
-    # process noise (ekf7_process_noise at q_k; wind random walk)
-    sg2, sb2 = prm[R_SG2], prm[R_SB2]
-    cqq = sg2 * dt / 4.0 + sb2 * dt**3 / 12.0
-    cqb = -sb2 * dt**2 / 4.0
-    for r in range(4):
-        for c in range(4):
-            P[r, c] += cqq * (Xi[r, 0] * Xi[c, 0] + Xi[r, 1] * Xi[c, 1] + Xi[r, 2] * Xi[c, 2])
-        for k in range(3):
-            P[r, ib + k] += cqb * Xi[r, k]
-            P[ib + k, r] += cqb * Xi[r, k]
-    for k in range(3):
-        P[ib + k, ib + k] += sb2 * dt
-    if iw >= 0:
-        P[iw, iw] += prm[R_WH2] * dt
-        P[iw + 1, iw + 1] += prm[R_WH2] * dt
-        P[iw + 2, iw + 2] += prm[R_WV2] * dt
+    _noise_add(cfg, prm, P, Xi, dt)
     _normalise_add(cfg, x, P, work, qk[0], qk[1], qk[2], qk[3])
 
 

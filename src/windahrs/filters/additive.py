@@ -8,8 +8,19 @@ parameters, initialisation (fixed, or TRIAD from the first accelerometer and
 magnetometer samples), the magnetometer reference, sequential 3-row vector updates with
 the innovation ``z - h(x)`` (SPEC 2.3), normalisation of ``q`` after every propagation
 and update with the covariance projected by the normalisation Jacobian, and the paper's
-air-flow row. The model functions are :mod:`windahrs.models.additive`, the Kalman and
-unscented steps :mod:`windahrs.core.dense`; this module only sequences them.
+air-flow row. What they share with [ekf7] is the compiled core's, written once:
+
+* the EKFs' update is the one Kalman update ``core.kalman._fuse``, given H on the
+  quaternion's four parameters;
+* [ekf]'s prediction is ``core.predict._predict_add`` (SPEC 2.3 without a gyro-bias
+  state); the UKF adds its process noise with ``core.predict._noise_add``;
+* the normalisation is ``core.predict._normalise_add``.
+
+The paper's own process model (Picard-4, constant Q) and the vector observations are
+:mod:`windahrs.models.additive`, the UKF's unscented steps :mod:`windahrs.core.dense`;
+this module sequences them. The state's arrays extend the core's (``core.layout``): cfg,
+prm and flags start with the core's fields, which the shared functions and the innovation
+logs read, and the scratch rows ``work`` are the core's.
 
 One numba function, :func:`run_events`, runs the merged events of a flight (base.replay
 compiled, with no Python per sample); :class:`AdditiveStreamer` feeds it one event at a
@@ -33,9 +44,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from windahrs.core import layout as core
 from windahrs.core.dense import (
-    kalman_update,
-    project_leading,
     propagate_cov,
     sigma_points,
     ut_mean_cov,
@@ -43,7 +53,20 @@ from windahrs.core.dense import (
     ut_weights,
 )
 from windahrs.core.events import sample_ok
-from windahrs.core.quat import _triad
+from windahrs.core.kalman import _fuse, _log, grown_logs, log_layout, read_logs
+from windahrs.core.layout import (
+    C_N,
+    INN_ACCEL,
+    INN_AIR,
+    INN_MAG,
+    K_SKIP,
+    W_HQ,
+    W_M,
+    W_NU,
+    W_R,
+)
+from windahrs.core.predict import _noise_add, _normalise_add, _predict_add
+from windahrs.core.quat import _qexp, _qmul, _triad, _xi_into
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     EVENT_AIR,
@@ -62,12 +85,7 @@ from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
     Xi,
     att_cov_from_quat_cov,
-    ekf7_process_noise,
-    normalization_jacobian,
-    normalize_state,
     quat_cov_from_att_cov,
-    sinc,
-    transition_exact,
     transition_picard4,
     vector_obs,
     vector_obs_jacobian,
@@ -77,7 +95,6 @@ __all__ = [
     "KIND_EKF",
     "KIND_PAPER",
     "KIND_UKF",
-    "SENSORS",
     "AdditiveEstimator",
     "AdditiveStreamer",
     "KernelConfig",
@@ -101,9 +118,8 @@ _JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 #: (exact transition, noise from the sensor densities), the additive UKF's.
 KIND_PAPER, KIND_EKF, KIND_UKF = 0, 1, 2
 
-#: Innovation logs (the Estimate's ``innovations`` keys, as filters.compiled.SENSORS).
-SENSORS = ("accel", "mag", "air")
-INN_ACCEL, INN_MAG, INN_AIR = 0, 1, 2
+#: The innovation logs (core.layout.AID_LOGS) these filters write.
+LOGGED = (INN_ACCEL, INN_MAG, INN_AIR)
 
 #: Below this air-relative speed (m/s) the air-flow direction is noise, so the row is not
 #: fused (counted).
@@ -112,30 +128,31 @@ MIN_AIR_SPEED = 0.5
 #: Reasons a sample was not fused, in the order of the counters.
 UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
 
-# cfg (int64): fixed for a run
-C_KIND, C_N, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = 0, 1, 2, 3, 4, 5
-N_CFG = 6
-# prm (float64): parameters
-R_P0_VAR = 0  # paper: initial variance per quaternion parameter
-R_ATT0_VAR = 1  # initial attitude variance per axis, rad^2
-R_BG0_VAR = 2  # initial gyro-bias variance per axis
-R_Q_VAR = 3  # paper: process variance per quaternion parameter per step
-R_ACC_VAR = 4  # paper: accelerometer variance per component
-R_MAG_VAR = 5  # paper: magnetometer variance per component
-R_AIR_VAR = 6  # paper: air-flow variance per component
-R_GNSS_AGE = 7  # paper: oldest GNSS velocity the air row uses, s
-R_GYRO = 8  # gyro white-noise density
-R_ACC_NOISE = 9  # accelerometer white-noise density
-R_ACC_UNIT2 = 10  # extra variance of the normalised accelerometer
-R_MAG_NOISE = 11  # magnetometer noise per sample, T
-R_MAG_UNIT2 = 12  # extra variance of the normalised magnetometer
-R_BG_RW = 13  # gyro-bias random-walk density
-R_GRAV = 14  # |g|, m/s^2
-R_SPREAD = 15  # UKF: n + lambda
-R_SITE_MAG = 16  # (3,) the site's field, or 0
-R_QSTART = 19  # (4,) fixed initial attitude
-R_B0 = 23  # (3,) initial gyro bias
-N_PRM = 26
+# cfg (int64): fixed for a run; after the core's fields (core.layout: C_N, C_ADD = ADD_COV,
+# no error-state blocks, the log layout)
+C_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
+N_CFG = core.N_CFG + 5
+# prm (float64): parameters; after the core's fields (core.layout: the process noise of
+# core.predict's additive model, R_SG2 = gyro_noise^2 and R_SB2 = gyro_bias_rw^2; the rest 0)
+_PRM0 = core.N_PRM
+R_P0_VAR = _PRM0 + 0  # paper: initial variance per quaternion parameter
+R_ATT0_VAR = _PRM0 + 1  # initial attitude variance per axis, rad^2
+R_BG0_VAR = _PRM0 + 2  # initial gyro-bias variance per axis
+R_Q_VAR = _PRM0 + 3  # paper: process variance per quaternion parameter per step
+R_ACC_VAR = _PRM0 + 4  # paper: accelerometer variance per component
+R_MAG_VAR = _PRM0 + 5  # paper: magnetometer variance per component
+R_AIR_VAR = _PRM0 + 6  # paper: air-flow variance per component
+R_GNSS_AGE = _PRM0 + 7  # paper: oldest GNSS velocity the air row uses, s
+R_ACC_NOISE = _PRM0 + 8  # accelerometer white-noise density
+R_ACC_UNIT2 = _PRM0 + 9  # extra variance of the normalised accelerometer
+R_MAG_NOISE = _PRM0 + 10  # magnetometer noise per sample, T
+R_MAG_UNIT2 = _PRM0 + 11  # extra variance of the normalised magnetometer
+R_GRAV = _PRM0 + 12  # |g|, m/s^2
+R_SPREAD = _PRM0 + 13  # UKF: n + lambda
+R_SITE_MAG = _PRM0 + 14  # (3,) the site's field, or 0
+R_QSTART = _PRM0 + 17  # (4,) fixed initial attitude
+R_B0 = _PRM0 + 21  # (3,) initial gyro bias
+N_PRM = _PRM0 + 24
 # s (float64): the remembered samples
 S_TIMU, S_TSTATE, S_DT = 0, 1, 2
 S_F = 3  # (3,) last specific force
@@ -144,12 +161,11 @@ S_MAGNORM = 9
 S_V = 10  # (3,) last GNSS velocity
 S_TGNSS = 13
 N_S = 14
-# flags (int64)
-F_READY, F_TIMU, F_F, F_MAGREF, F_V = 0, 1, 2, 3, 4
-K_SKIP = 5  # (4,) NaN samples skipped: imu, mag, gnss, air
-K_UNF = 9  # (4,) samples not fused, UNFUSED order
-F_NLOG = 13  # rows logged
-N_FLAGS = 14
+# flags (int64): after the core's (core.layout: the log counters L_CNT, L_FIRST, S_SEQ and
+# K_SKIP (4,), NaN samples skipped: imu, mag, gnss, air)
+F_READY, F_TIMU, F_F, F_MAGREF, F_V = range(core.N_FLAGS, core.N_FLAGS + 5)
+K_UNF = core.N_FLAGS + 5  # (4,) samples not fused, UNFUSED order
+N_FLAGS = core.N_FLAGS + 9
 
 _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer's reading
 
@@ -157,8 +173,9 @@ _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer'
 class KernelState(NamedTuple):
     """Everything a running filter needs, in arrays: cfg (N_CFG,) int64, prm (N_PRM,),
     s (N_S,) remembered samples, flags (N_FLAGS,) int64, x (n,), P (n, n), wm and wc
-    (2n+1,) unscented weights (UKF; (1,) otherwise), inn (cap, 5) log rows [t, nu (3),
-    nis], inn_id (cap,) int64 their sensor (SENSORS index)."""
+    (2n+1,) unscented weights (UKF; (1,) otherwise), and as in core.layout.KernelState:
+    work (N_WORK, NMAX) scratch rows, sup (2, NMAX) the columns of H (row 1: all n),
+    inn (L, 5) innovation log rows [t, nu (3), nis], acc (L,) accepted."""
 
     cfg: I64
     prm: F64
@@ -168,8 +185,10 @@ class KernelState(NamedTuple):
     P: F64
     wm: F64
     wc: F64
+    work: F64
+    sup: I64
     inn: F64
-    inn_id: I64
+    acc: NDArray[np.bool_]
 
 
 # --- compiled kernels ---------------------------------------------------------------------
@@ -233,26 +252,24 @@ def _matvec4(M, v):
 
 
 @njit(**_JIT)
-def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
-    """Propagate (x, P) in place over dt with the gyro sample w_b (3,)."""
+def _predict(cfg, prm, x, P, wm, wc, work, w_b, dt):
+    """Propagate (x, P) in place over dt with the gyro sample w_b (3,), and normalise.
+
+    [paper], [paper-nowind]: the paper's own process model (eq. 6 and 32: the Picard-4
+    transition with the raw gyro, no bias state, the constant ``Q = q_var I4`` on the
+    quaternion's parameters; SPEC 2.2, 2.3's paper-faithful variant). [ekf]: SPEC 2.3
+    without a gyro-bias state, the core's additive prediction (``core.predict._predict_add``,
+    [ekf7]'s). [ukf]: the sigma points through ``q * Exp((w - b) dt)``, SPEC 2.3's Q
+    (``core.predict._noise_add``)."""
     kind = cfg[C_KIND]
     if kind == KIND_PAPER:
         # The paper's filter has no bias state: the raw gyro drives eq. 6.
         Phi = transition_picard4(w_b * dt)
         x[:] = _matvec4(Phi, x)
         P[:, :] = propagate_cov(Phi, P, prm[R_Q_VAR] * np.eye(4))
+        _normalize(cfg, x, P, work)
     elif kind == KIND_EKF:
-        Phi = transition_exact(w_b * dt)
-        q = _matvec4(Phi, x)
-        X = Xi(q)
-        x[:] = q
-        # SPEC 2.3 Q_d,qq with sigma_b = 0: the gyro white noise, rank 3.
-        c = prm[R_GYRO] ** 2 * dt / 4.0
-        Q = np.empty((4, 4))
-        for i in range(4):
-            for j in range(4):
-                Q[i, j] = c * (X[i, 0] * X[j, 0] + X[i, 1] * X[j, 1] + X[i, 2] * X[j, 2])
-        P[:, :] = propagate_cov(Phi, P, Q)
+        _predict_add(cfg, prm, x, P, work, w_b[0], w_b[1], w_b[2], dt)
     else:
         S = sigma_points(x, P, prm[R_SPREAD])
         npts = S.shape[0]
@@ -265,28 +282,24 @@ def _predict(cfg, prm, x, P, wm, wc, w_b, dt):
             if S[p, 0] * c[0] + S[p, 1] * c[1] + S[p, 2] * c[2] + S[p, 3] * c[3] < 0.0:
                 S[p, :4] = -S[p, :4]
         xm, Pm = ut_mean_cov(S, wm, wc)
-        q = xm[:4].copy()
-        Pm = project_leading(Pm, normalization_jacobian(q))
-        xm[:4] = q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
         x[:] = xm
-        P[:, :] = Pm + ekf7_process_noise(xm[:4].copy(), prm[R_GYRO], prm[R_BG_RW], dt)
+        P[:, :] = Pm
+        # SPEC 2.3's Q at the mean, then the normalisation: [ekf7]'s order (Q at a non-unit
+        # q is Q at q/|q| once projected, J Xi(q) = Xi(q/|q|))
+        Xi = work[W_M + 4 : W_M + 8]
+        _xi_into(x[0], x[1], x[2], x[3], Xi)
+        _noise_add(cfg, prm, P, Xi, dt)
+        _normalize(cfg, x, P, work)
 
 
-# The UKF's quaternion arithmetic: rotation.quat_mul / quat_exp / quat_rotate_inv on scalars.
+# The UKF's sigma points: the kinematics (core.quat) and the vector rows on scalars.
 
 
 @njit(**_JIT)
 def _propagate_point(S, p, w_b, dt):
     """Sigma point p of S (2n+1, 7) in place: ``q <- q * Exp((w_b - b) dt)``, normalised."""
-    d0, d1, d2 = (w_b[0] - S[p, 4]) * dt, (w_b[1] - S[p, 5]) * dt, (w_b[2] - S[p, 6]) * dt
-    a = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    s = 0.5 * sinc(a / (2.0 * np.pi))
-    e0, e1, e2, e3 = math.cos(0.5 * a), s * d0, s * d1, s * d2
-    p0, p1, p2, p3 = S[p, 0], S[p, 1], S[p, 2], S[p, 3]
-    q0 = p0 * e0 - p1 * e1 - p2 * e2 - p3 * e3
-    q1 = p0 * e1 + p1 * e0 + p2 * e3 - p3 * e2
-    q2 = p0 * e2 - p1 * e3 + p2 * e0 + p3 * e1
-    q3 = p0 * e3 + p1 * e2 - p2 * e1 + p3 * e0
+    e = _qexp((w_b[0] - S[p, 4]) * dt, (w_b[1] - S[p, 5]) * dt, (w_b[2] - S[p, 6]) * dt)
+    q0, q1, q2, q3 = _qmul(S[p, 0], S[p, 1], S[p, 2], S[p, 3], e[0], e[1], e[2], e[3])
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     S[p, 0], S[p, 1], S[p, 2], S[p, 3] = q0 / n, q1 / n, q2 / n, q3 / n
 
@@ -305,48 +318,45 @@ def _observe_point(S, p, v, Y):
 
 
 @njit(**_JIT)
-def _normalize(x, P):
-    """:func:`~windahrs.models.additive.normalize_state` in place."""
-    x2, P2 = normalize_state(x, P)
-    x[:] = x2
-    P[:, :] = P2
+def _normalize(cfg, x, P, work):
+    """``q <- q/|q|`` (w >= 0), ``P <- J P J^T`` (SPEC 2.3) in place: the core's
+    additive normalisation (``core.predict._normalise_add``, [ekf7]'s)."""
+    _normalise_add(cfg, x, P, work, x[0], x[1], x[2], x[3])
 
 
 @njit(**_JIT)
-def _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, sensor, t, z, r_n, var):
-    """Fuse ``z = C_bn r_n + v``, v ~ N(0, var I3): EKF (Joseph form) or unscented update,
-    normalisation, one log row."""
-    n = cfg[C_N]
-    R = var * np.eye(3)
+def _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, z, r_n, var):
+    """Fuse ``z = C_bn r_n + v``, v ~ N(0, var I3), and log it. The EKFs: the one Kalman
+    update (``core.kalman._fuse``) with H (3, 4) on the quaternion's parameters (the
+    columns ``sup[1, :4]``) and no gate (these filters fuse every sample: the gate at
+    infinity accepts every finite innovation), then its normalisation. The UKF: the
+    unscented update, the normalisation, the log row (accepted)."""
     if cfg[C_KIND] == KIND_UKF:
         S = sigma_points(x, P, prm[R_SPREAD])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
             _observe_point(S, p, r_n, Y)
-        x2, P2, nu, nis = ut_update(x, P, S, Y, z, R, wm, wc)
+        x2, P2, nu, nis = ut_update(x, P, S, Y, z, var * np.eye(3), wm, wc)
+        x[:] = x2
+        P[:, :] = P2
+        _normalize(cfg, x, P, work)
+        _log(cfg, flags, inn, acc, nu, sensor, t, np.int64(3), nis, np.bool_(True))
     else:
-        q = x[:4].copy()
-        if n == 4:
-            H = vector_obs_jacobian(q, r_n)
-        else:
-            H = np.zeros((3, n))
-            H[:, :4] = vector_obs_jacobian(q, r_n)
-        nu = z - vector_obs(q, r_n)
-        x2, P2, nis = kalman_update(x, P, H, nu, R)
-    _normalize(x2, P2)
-    x[:] = x2
-    P[:, :] = P2
-    k = flags[F_NLOG]
-    inn[k, 0] = t
-    inn[k, 1:4] = nu
-    inn[k, 4] = nis
-    inn_id[k] = sensor
-    flags[F_NLOG] = k + 1
+        q = x[:4]
+        Hq, y = vector_obs_jacobian(q, r_n), vector_obs(q, r_n)
+        H, nu, R = work[W_HQ : W_HQ + 3], work[W_NU], work[W_R : W_R + 3]
+        for k in range(3):
+            nu[k] = z[k] - y[k]
+            for c in range(4):
+                H[k, c] = Hq[k, c]
+            for c in range(3):
+                R[k, c] = var if k == c else 0.0
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, np.int64(3), np.int64(4), np.inf)
     s[S_TSTATE] = t
 
 
 @njit(**_JIT)
-def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):
+def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b):
     """IMU sample: gyro w_b (3,) rad/s, specific force f_b (3,) m/s^2 at t s."""
     first = flags[F_TIMU] == 0
     dt = 0.0 if first else t - s[S_TIMU]
@@ -365,19 +375,19 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, w_b, f_b):
     if flags[F_READY] == 0:
         return  # TRIAD still waits for its magnetometer sample
     s[S_DT] = dt
-    _predict(cfg, prm, x, P, wm, wc, w_b, dt)
-    _normalize(x, P)
+    _predict(cfg, prm, x, P, wm, wc, work, w_b, dt)
     if cfg[C_KIND] == KIND_PAPER:
         var = prm[R_ACC_VAR]
     else:
         # Per-sample noise sigma_c / sqrt(dt) (Kalibr), divided by |f| = g for the unit vector.
         sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_GRAV]
         var = sw * sw + prm[R_ACC_UNIT2]
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_ACCEL, t, f_b / _norm3(f_b), _UP_N, var)
+    sensor = np.int64(INN_ACCEL)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, f_b / _norm3(f_b), _UP_N, var)
 
 
 @njit(**_JIT)
-def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):
+def step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, mag_b):
     """Magnetometer sample mag_b (3,) T at t s."""
     if flags[F_F] == 0:
         flags[K_UNF + 0] += 1  # mag_before_imu
@@ -406,7 +416,8 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, mag_b):
         r = prm[R_MAG_NOISE] / s[S_MAGNORM]
         var = r * r + prm[R_MAG_UNIT2]
     r_n = s[S_MAGREF : S_MAGREF + 3].copy()
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_MAG, t, mag_b / norm, r_n, var)
+    sensor = np.int64(INN_MAG)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, mag_b / norm, r_n, var)
 
 
 @njit(**_JIT)
@@ -418,7 +429,7 @@ def step_gnss(s, flags, t, v_n):
 
 
 @njit(**_JIT)
-def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n):
+def step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, aoa, beta, wind_n):
     """Air data at t s: the air-flow direction from the vanes (aoa, beta rad) against
     ``u = (V_n - W_n)/|V_n - W_n|``, V_n the latest GNSS velocity, wind_n (3,) the
     provider's wind (SPEC 3.4.3)."""
@@ -442,7 +453,8 @@ def step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, aoa, beta, wind_n
     z[0] = math.cos(aoa) * math.cos(beta)
     z[1] = math.sin(beta)
     z[2] = math.sin(aoa) * math.cos(beta)
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, INN_AIR, t, z, u / speed, prm[R_AIR_VAR])
+    sensor = np.int64(INN_AIR)
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, z, u / speed, prm[R_AIR_VAR])
 
 
 @njit(**_JIT)
@@ -482,7 +494,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
     """base.replay, compiled: feed the merged events (t_ev (E,), kinds (E,), vals (E, 6);
     an air row carries the wind in columns 3..5), skip and count NaN samples, and (rec)
     record for IMU sample k the state after every event with t <= t_imu[k]."""
-    cfg, prm, s, flags, x, P, wm, wc, inn, inn_id = st
+    cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc = st
     k = -1
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
@@ -494,13 +506,13 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_cov, rec):
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
         elif kind == EVENT_IMU:
-            step_imu(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy(), row[3:6].copy())
+            step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, row[:3].copy(), row[3:6].copy())
         elif kind == EVENT_MAG:
-            step_mag(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[:3].copy())
+            step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, row[:3].copy())
         elif kind == EVENT_GNSS:
             step_gnss(s, flags, t, row[:3].copy())
         elif kind == EVENT_AIR:
-            step_air(cfg, prm, s, flags, x, P, wm, wc, inn, inn_id, t, row[1], row[2], row[3:6].copy())
+            step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, row[1], row[2], row[3:6].copy())
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov)
 
@@ -538,12 +550,21 @@ class KernelConfig:
     ut: tuple[float, float, float] = (1.0, 0.0, 1.0)  # alpha, beta, kappa
 
 
-def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> KernelState:
+def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int, int]) -> KernelState:
     """A fresh KernelState for the filter c at the site; has: the streams that will be fed;
-    cap: innovation log rows (at most one per event)."""
+    caps: innovation log rows by sensor (core.layout's INN_ACCEL, INN_MAG, INN_AIR; at
+    most one per event of its stream)."""
     cfg = np.zeros(N_CFG, dtype=np.int64)
-    cfg[C_KIND] = c.kind
+    # the core's fields: the covariance, the form of H, no error-state blocks to inject into
     cfg[C_N] = c.n
+    cfg[core.C_ADD] = core.ADD_COV
+    cfg[core.C_IV] = cfg[core.C_IW] = cfg[core.C_IBA] = cfg[core.C_IBM] = -1
+    cfg[core.C_IBG] = 3 if c.n == 7 else -1  # the UKF's gyro bias: covariance rows 4..6
+    rows = np.zeros(core.N_SENSORS, dtype=np.int64)
+    for sensor, cap in caps.items():
+        rows[sensor] = cap
+    total = log_layout(cfg, rows)
+    cfg[C_KIND] = c.kind
     cfg[C_HAS_MAG] = int("mag" in has)
     cfg[C_QSTART] = int(c.q_start is not None)
     cfg[C_USE_AIR] = int(c.use_air)
@@ -557,12 +578,12 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
     prm[R_MAG_VAR] = c.mag_var
     prm[R_AIR_VAR] = c.air_var
     prm[R_GNSS_AGE] = c.gnss_max_age
-    prm[R_GYRO] = c.gyro_noise
+    prm[core.R_SG2] = c.gyro_noise**2
+    prm[core.R_SB2] = c.gyro_bias_rw**2
     prm[R_ACC_NOISE] = c.accel_noise
     prm[R_ACC_UNIT2] = c.accel_sigma_unit**2
     prm[R_MAG_NOISE] = c.mag_noise
     prm[R_MAG_UNIT2] = c.mag_sigma_unit**2
-    prm[R_BG_RW] = c.gyro_bias_rw
     prm[R_GRAV] = site.gravity
     if c.q_start is not None:
         q = np.asarray(c.q_start, dtype=np.float64)
@@ -578,6 +599,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
     s[S_TGNSS] = -np.inf
     s[S_TSTATE] = -np.inf  # no sample yet
     flags = np.zeros(N_FLAGS, dtype=np.int64)
+    flags[core.L_FIRST : core.L_FIRST + core.N_SENSORS] = -1
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
         norm = float(np.linalg.norm(site.mag_n))
@@ -591,6 +613,8 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
         wm, wc = np.ones(1), np.ones(1)
     x = np.zeros(c.n)
     x[0] = 1.0
+    sup = np.zeros((2, core.NMAX), dtype=np.int64)
+    sup[1, :4] = np.arange(4)  # the vector rows' H: on the quaternion's columns
     return KernelState(
         cfg=cfg,
         prm=prm,
@@ -600,25 +624,16 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], cap: int) -> Ke
         P=np.eye(c.n),
         wm=wm,
         wc=wc,
-        inn=np.empty((cap, 5)),
-        inn_id=np.zeros(cap, dtype=np.int64),
+        work=np.zeros((core.N_WORK, max(c.n, core.NMAX))),
+        sup=sup,
+        inn=np.empty((total, 5)),
+        acc=np.zeros(total, dtype=np.bool_),
     )
 
 
 def _innovations(st: KernelState) -> dict[str, Innovations]:
-    """The log as Estimate innovations, keyed in the order sensors first logged."""
-    m = int(st.flags[F_NLOG])
-    ids, rows = st.inn_id[:m], st.inn[:m]
-    out: dict[str, Innovations] = {}
-    for sid in dict.fromkeys(ids.tolist()):
-        sel = ids == sid
-        out[SENSORS[sid]] = Innovations(
-            t=rows[sel, 0].copy(),
-            nu=rows[sel, 1:4].copy(),
-            nis=rows[sel, 4].copy(),
-            accepted=np.ones(int(sel.sum()), dtype=bool),
-        )
-    return out
+    """The logs as Estimate innovations, keyed in the order sensors first logged."""
+    return read_logs(st.cfg, st.flags, st.inn, st.acc)
 
 
 def unfused_counts(st: KernelState) -> dict[str, int]:
@@ -647,7 +662,7 @@ class AdditiveStreamer(EventStreamer):
         self._c = config
         self._labels = labels
         self._wind = wind
-        self._st = make_state(config, site, has, 256)
+        self._st = make_state(config, site, has, dict.fromkeys(LOGGED, 256))
         d = len(labels)
         self._q, self._bg, self._cov = np.empty((1, 4)), np.empty((1, 3)), np.empty((1, d, d))
 
@@ -658,12 +673,10 @@ class AdditiveStreamer(EventStreamer):
 
     def _step(self, kind: int, t: float) -> None:
         st = self._st
-        if st.flags[F_NLOG] >= len(st.inn_id):  # an event logs at most one row
-            cap = 2 * len(st.inn_id)
-            inn, ids = np.empty((cap, 5)), np.zeros(cap, dtype=np.int64)
-            inn[: len(st.inn)] = st.inn
-            ids[: len(st.inn_id)] = st.inn_id
-            self._st = st = st._replace(inn=inn, inn_id=ids)
+        cnt = st.flags[core.L_CNT : core.L_CNT + core.N_SENSORS]
+        if (cnt >= st.cfg[core.C_CAP : core.C_CAP + core.N_SENSORS]).any():
+            cfg, inn, acc = grown_logs(st.cfg, st.flags, st.inn, st.acc)  # an event logs at most one row
+            self._st = st = st._replace(cfg=cfg, inn=inn, acc=acc)
         run_events(st, self._t, self._kind, self._row, self._q, self._bg, self._cov, False)
 
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
@@ -724,7 +737,9 @@ class AdditiveEstimator(Estimator):
             air = np.flatnonzero(kinds == EVENT_AIR)
             vals[air, 3:6] = wind_at(wind, t_ev[air])
         c = self.config(initial)
-        st = make_state(c, flight.site, has, len(t_ev))
+        counts = np.bincount(kinds, minlength=len(_STREAMS))
+        caps = {INN_ACCEL: counts[EVENT_IMU], INN_MAG: counts[EVENT_MAG], INN_AIR: counts[EVENT_AIR]}
+        st = make_state(c, flight.site, has, caps)
         N, d = len(flight.imu.t), len(self.labels)
         q, cov = np.empty((N, 4)), np.empty((N, d, d))
         bg = np.empty((N, 3)) if c.n == 7 else np.empty((0, 3))

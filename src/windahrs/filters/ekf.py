@@ -3,7 +3,8 @@ ref. [6]), tuned from the sensor noise instead of the paper's constants.
 
 4 states (the quaternion), exact transition, Joseph-form updates with the innovation
 ``z - h(x)``, normalisation with covariance projection (SPEC 2.3); it runs on the compiled
-loop of :mod:`windahrs.filters.additive`.
+loop of :mod:`windahrs.filters.additive`, its prediction, update and normalisation those of
+[ekf7] (``core.predict._predict_add`` without a gyro-bias state, ``core.kalman._fuse``).
 """
 
 from __future__ import annotations

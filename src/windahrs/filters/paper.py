@@ -2,9 +2,11 @@
 (eqs 6, 30-33) with every error of SPEC 8 corrected, fusing the normalised accelerometer,
 magnetometer and (paper) the air-flow direction (SPEC 3.2.1, 3.1, 3.4.3).
 
-The quaternion parameters themselves are the state; the math lives in
-:mod:`windahrs.models.additive` and :mod:`windahrs.core.dense`, sequenced by the compiled
-loop of :mod:`windahrs.filters.additive`. Shared rules (SPEC 2.3): innovation ``z - h(x)``
+The quaternion parameters themselves are the state; the paper's process and measurement
+models live in :mod:`windahrs.models.additive` (and ``core.dense.propagate_cov``), the
+update and the normalisation are the compiled core's (``core.kalman._fuse``,
+``core.predict._normalise_add``), sequenced by the compiled loop of
+:mod:`windahrs.filters.additive`. Shared rules (SPEC 2.3): innovation ``z - h(x)``
 (never the printed ``z - H x``), Joseph-form covariance update, normalisation of ``q``
 after every propagation and update with the covariance projected by the normalisation
 Jacobian. Accelerometer, magnetometer and air-data rows are fused as separate sequential

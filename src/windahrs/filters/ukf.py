@@ -1,6 +1,7 @@
 """[ukf]: the additive-quaternion UKF the paper compares with (its ref. [7], SPEC 4.2),
 with a gyro-bias state; it runs on the compiled loop of :mod:`windahrs.filters.additive`
-with the unscented transform of :mod:`windahrs.core.dense`.
+with the unscented transform of :mod:`windahrs.core.dense`, [ekf7]'s process noise and
+normalisation (``core.predict._noise_add``, ``_normalise_add``).
 """
 
 from __future__ import annotations
@@ -64,8 +65,8 @@ class AdditiveUKF(AdditiveEstimator):
     from the LDL^T root :func:`~windahrs.core.dense.psd_root` of ``(n + lambda) P``:
     determined by P alone, and defined where the normalisation leaves P singular along q),
     each propagated quaternion normalised and flipped to the centre point's hemisphere,
-    weighted mean renormalised (covariance projected as in the EKF); process noise of
-    SPEC 2.3; accelerometer and magnetometer as normalised vectors as in
+    process noise of SPEC 2.3 added at the weighted mean, which is then renormalised
+    (covariance projected as in the EKF); accelerometer and magnetometer as normalised vectors as in
     :class:`~windahrs.filters.ekf.TraditionalEKF`; TRIAD initialisation. Reports the gyro
     bias and the covariance in the tangent space (att_x.., bg_x..):
     ``P_dtheta = 4 Xi^T P_qq Xi``. Innovations logged as "accel" and "mag".
