@@ -39,6 +39,9 @@ TILT_TAU_S = 10.0
 #: An alert when the mean specific force is further than this from the vertical, deg (the
 #: error a user would call lost; issue 12's "more than 10 deg in tilt from the reference").
 TILT_LIMIT_DEG = 10.0
+#: The specific force is rotated into the nav frame at this rate, as block means (a 10 s mean
+#: needs no more; it keeps the check at a tenth of a 200 Hz filter's cost).
+CHECK_RATE_HZ = 20.0
 #: ... for at least this long, s.
 TILT_HOLD_S = 3.0
 
@@ -69,8 +72,18 @@ def tilt_alerts(
     t, imu = est.t, flight.imu
     if len(t) != len(imu.t) or len(t) < 2:
         return np.empty((0, 3))
+    # every sample's specific force, rotated at CHECK_RATE_HZ (the mean's tau is seconds)
     dt = float(np.median(np.diff(t)))
-    f_n = quat_rotate(_fill(est.q_nb), _fill(imu.f_b))  # a_n - g_n for a right attitude
+    step = max(1, int(1.0 / (CHECK_RATE_HZ * dt)))
+    f_b = _fill(imu.f_b)
+    if step > 1:  # the block means of the samples, rotated with the block's middle attitude
+        n = len(t) // step * step
+        f_b = f_b[:n].reshape(-1, step, 3).mean(axis=1)
+        t, q = t[step // 2 : n : step], _fill(est.q_nb)[step // 2 : n : step]
+        dt *= step
+    else:
+        q = _fill(est.q_nb)
+    f_n = quat_rotate(q, f_b)  # a_n - g_n for a right attitude
     g = flight.gnss
     if g is not None and len(g.t) >= 3:
         ok = np.isfinite(g.v_n).all(axis=1)
