@@ -223,7 +223,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
 
 
-@njit(**_JIT)
+@njit(inline="always", **_JIT)
 def _heading_offset(cfg, x, mx, my, mz, rx, ry):
     """The rotation about the nav vertical, rad, that turns the field sample m (body; less
     the hard iron when estimated) onto the reference's heading."""
