@@ -364,7 +364,8 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
             _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
-        add_held_sample_noise(cfg, prm, x, P, work, dt)
+        if dt > prm[R_HOLD_DT]:  # (tested here: a call per sample costs more than the test)
+            add_held_sample_noise(cfg, prm, x, P, work, dt)
     if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
         return
