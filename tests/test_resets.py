@@ -25,7 +25,8 @@ def _upside_down(flight: wa.Flight) -> InitialState:
 
 def test_upside_down_start_is_levelled_logged_and_warned(tmp_path) -> None:
     flight = wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0)
-    with pytest.warns(EstimatorWarning, match=r"mekf: accel rejected for 5\.\d s; at t = 5\.\d+ s attitude levelled"):
+    with pytest.warns(EstimatorWarning, match=r"mekf: accel more than 45 deg off the state for 5\.\d s; "
+                      r"at t = 5\.\d+ s attitude levelled"):
         est = wa.estimator("mekf").run(flight, initial=_upside_down(flight))
     rows = est.resets["accel"]
     assert rows.shape[1] == 3 and rows[0, 1] > np.radians(150)  # the first reset undoes the flip

@@ -148,7 +148,8 @@ class Estimate:
                         what += ", magnetometer no longer fused"
                 else:
                     what = f"state reset to it by {size:.3g}"
-                out.append(f"{self.filter}: {sensor} rejected for {out_for:.1f} s; at t = {t:.2f} s {what}")
+                why = "rejected" if sensor == "gnss" else "more than 45 deg off the state"
+                out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "
                        f"from t = {t0:.1f} to {t1:.1f} s (lost gravity?)")

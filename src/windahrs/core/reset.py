@@ -5,11 +5,13 @@ initialisation and every reset set.
 
 A gate that trusts a wrong state rejects every measurement that would fix it: after an
 upside-down start, a gyro spike or a long outage, the innovations stay beyond the gate for
-good. Each aid source therefore remembers when it was last accepted (``x[X_TOK + sensor]``,
-NaN until initialisation) and, past the timeout, resets the states it observes to its
-measurement, reopens their spread, and logs the reset in the ``reset`` log (the sensor,
-the size of the reset, how long the sensor had been out), which
-:class:`~windahrs.estimate.Estimate` carries as ``resets`` and warns about.
+good. Each aid source therefore remembers when it last agreed with the state
+(``x[X_TOK + sensor]``, NaN until initialisation: the accelerometer's gravity direction and
+the magnetometer's heading within 45 deg of the state's, GNSS velocity accepted by its gate)
+and, past the timeout, resets the states it observes to its measurement, reopens their
+spread, and logs the reset in the ``reset`` log (the sensor, the size of the reset, how long
+the sensor had been out), which :class:`~windahrs.estimate.Estimate` carries as ``resets``
+and warns about.
 """
 
 from __future__ import annotations
