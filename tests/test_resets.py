@@ -116,3 +116,11 @@ def _clean_imu(flight: wa.Flight) -> ImuStream:
     k = int(np.argmax(np.abs(w[:, 0])))
     w[k] = 0.5 * (w[k - 1] + w[k + 1])
     return ImuStream(t=flight.imu.t, w_b=w, f_b=flight.imu.f_b)
+
+
+def test_usque_levels_an_upside_down_start_too() -> None:
+    flight = wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0)
+    with pytest.warns(EstimatorWarning, match=r"usque: accel more than 45 deg off the state"):
+        est = wa.estimator("usque").run(flight, initial=_upside_down(flight))
+    assert est.resets["accel"][0, 1] > np.radians(150)
+    assert np.degrees(attitude_errors(est, flight).tilt[est.t > 15.0]).max() < 3.0

@@ -41,6 +41,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from windahrs.aid.gravity import LOST_COS
 from windahrs.aid.mag import mag_reference, measured_heading
 from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
@@ -52,6 +53,7 @@ from windahrs.core.kernel import (
     Kind,
     _grow,
     _innovations,
+    _resets,
     effective_mag_mode,
     imu_clock,
     layout_for,
@@ -86,12 +88,14 @@ from windahrs.core.layout import (
     KernelState,
 )
 from windahrs.core.quat import (
+    _dcm9,
     _euler,
     _qexp,
     _qmul,
     _qnormalize,
     _wrap_pi,
 )
+from windahrs.core.reset import accepted_at, level_to, log_reset, reset_gyro_bias, set_attitude_cov, timed_out
 from windahrs.estimate import Estimate
 from windahrs.filters.base import EVENT_IMU, EVENT_MAG, Estimator, InitialState, merge_events
 from windahrs.filters.checks import checked
@@ -357,9 +361,22 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
         _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
     nu = work[U_NU]
     g = prm[R_GRAV]
-    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
+    f_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if abs(f_norm - g) > prm[R_NORM_GATE] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
         _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
+        return
+    # lost gravity, as the gravity aid source sees it (windahrs.aid.gravity, core.reset): the
+    # measured down direction -f more than 45 deg from the state's C_bn e_3 for reset_timeout
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    sensor = np.int64(INN_ACCEL)
+    if -(fx * c[6] + fy * c[7] + fz * c[8]) > LOST_COS * f_norm:
+        accepted_at(x, sensor, t)
+    elif timed_out(prm, x, sensor, t):
+        angle = level_to(x, -fx, -fy, -fz)
+        set_attitude_cov(cfg, prm, x, P, work)
+        reset_gyro_bias(cfg, prm, x, P)
+        log_reset(cfg, flags, inn, acc, work, x, sensor, t, angle)
         return
     _sigma(x, P, work)
     _predict_vector(work, -0.0, -0.0, -g)  # -g_n
@@ -471,6 +488,7 @@ PARAMS = (
     "mag_sigma",
     "mag_3d_needs_site",
     "gate_mag",
+    "reset_timeout",
 )
 
 
@@ -510,7 +528,7 @@ class Usque(Estimator):
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
         t_ev, kinds, vals = merge_events(flight, has)
         counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
-        fused = ("accel", "mag")  # [usque]'s aid sources
+        fused = ("accel", "mag", "reset")  # [usque]'s aid sources, and its resets
         caps = np.array(
             [counts[s] if k in fused else 0 for k, s in zip(SENSORS, SENSOR_STREAMS, strict=True)], dtype=np.int64
         )
@@ -533,6 +551,7 @@ class Usque(Estimator):
             innovations=_innovations(st, effective_mag_mode(self.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
+            resets=_resets(st),
         ), flight)
 
     def streamer(
