@@ -59,7 +59,7 @@ from windahrs.core.layout import (
     R_P0_WV,
     S_AGNSS,
     S_AINS,
-    S_FINS,
+    S_FBAR,
     S_MAG_FAULT,
     S_VGNSS,
     S_WPEND,
@@ -69,12 +69,11 @@ from windahrs.core.layout import (
     X_AGNSS,
     X_AINS,
     X_BA,
-    X_FINS,
+    X_FBAR,
     X_TGNSS,
     X_V,
     X_VGNSS,
 )
-from windahrs.core.quat import _dcm9, _qexp
 from windahrs.core.reset import (
     accepted_at,
     level_to,
@@ -141,21 +140,19 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 
 
 @njit(inline="always", **_JIT)
-def remember_specific_force(x, flags, wx, wy, wz, fx, fy, fz, dt):
-    """The INS's mean specific force over LEVEL_TAU in the current body frame: the mean is
-    rotated into the new body frame by the gyro increment (w, bias-corrected, rad/s, over
-    dt s), then blended with f (m/s^2)."""
-    if flags[S_FINS] == 0:
-        x[X_FINS], x[X_FINS + 1], x[X_FINS + 2] = fx, fy, fz
-        flags[S_FINS] = 1
+def remember_specific_force(x, flags, fx, fy, fz, dt):
+    """The INS's mean specific force over LEVEL_TAU in the current body frame, in the slot of
+    the gravity aid source's mean (x[X_FBAR]: the INS fuses no gravity): blended with f
+    (m/s^2) after the kernel has rotated it into the new body frame by the gyro increment
+    (kernel._rotate_lowpass, as for every filter whose mean is set)."""
+    if flags[S_FBAR] == 0:
+        x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2] = fx, fy, fz
+        flags[S_FBAR] = 1
         return
-    e = _qexp(wx * dt, wy * dt, wz * dt)
-    c = _dcm9(e[0], e[1], e[2], e[3])
-    v0, v1, v2 = x[X_FINS], x[X_FINS + 1], x[X_FINS + 2]
     k = _lowpass_gain(dt, LEVEL_TAU)
-    x[X_FINS] = c[0] * v0 + c[3] * v1 + c[6] * v2 + k * (fx - (c[0] * v0 + c[3] * v1 + c[6] * v2))
-    x[X_FINS + 1] = c[1] * v0 + c[4] * v1 + c[7] * v2 + k * (fy - (c[1] * v0 + c[4] * v1 + c[7] * v2))
-    x[X_FINS + 2] = c[2] * v0 + c[5] * v1 + c[8] * v2 + k * (fz - (c[2] * v0 + c[5] * v1 + c[8] * v2))
+    x[X_FBAR] = x[X_FBAR] + k * (fx - x[X_FBAR])
+    x[X_FBAR + 1] = x[X_FBAR + 1] + k * (fy - x[X_FBAR + 1])
+    x[X_FBAR + 2] = x[X_FBAR + 2] + k * (fz - x[X_FBAR + 2])
 
 
 @njit(**_JIT)
@@ -163,7 +160,7 @@ def _level(prm, x):
     """Level the attitude so that the mean specific force matches the mean GNSS
     acceleration, ``f_b = C_bn (a_n - g_n)`` (both over LEVEL_TAU)."""
     g = prm[R_GRAV]
-    level_to(x, -x[X_FINS], -x[X_FINS + 1], -x[X_FINS + 2], -x[X_AINS], -x[X_AINS + 1], g - x[X_AINS + 2])
+    level_to(x, -x[X_FBAR], -x[X_FBAR + 1], -x[X_FBAR + 2], -x[X_AINS], -x[X_AINS + 1], g - x[X_AINS + 2])
 
 
 @njit(**_JIT)
@@ -178,7 +175,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     for a in range(3):
         dv2 += (row[a] - x[X_V + a]) ** 2
         x[X_V + a] = row[a]
-    if flags[S_FINS] == 1 and flags[S_AINS] == 1:
+    if flags[S_FBAR] == 1 and flags[S_AINS] == 1:
         _level(prm, x)
     set_attitude_cov(cfg, prm, x, P, work)
     reset_gyro_bias(cfg, prm, x, P)

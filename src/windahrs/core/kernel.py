@@ -369,8 +369,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
         return
-    wx, wy, wz = row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2]
-    remember_specific_force(x, flags, wx, wy, wz, fx, fy, fz, dt)
+    remember_specific_force(x, flags, fx, fy, fz, dt)
     if cfg[C_DRAG] == 1:  # ... and may also read the drag in it
         fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
