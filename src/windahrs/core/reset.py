@@ -42,13 +42,13 @@ from windahrs.core.quat import _dcm9, _qmul, _qnormalize, _xi_into
 
 @njit(**_JIT)
 def accepted_at(x, sensor, t):
-    """Remember that ``sensor`` was accepted at t s."""
+    """Remember that ``sensor`` agreed with the state at t s (module docstring)."""
     x[X_TOK + sensor] = t
 
 
 @njit(**_JIT)
 def timed_out(prm, x, sensor, t):
-    """Whether ``sensor`` has been kept out by its gate for longer than reset_timeout
+    """Whether ``sensor`` has not agreed with the state for longer than reset_timeout
     (never before initialisation, nor with reset_timeout 0)."""
     tout = prm[R_RESET_TOUT]
     return tout > 0 and t - x[X_TOK + sensor] > tout
@@ -109,11 +109,9 @@ def set_attitude_cov(cfg, prm, x, P, work):
 def reset_gyro_bias(cfg, prm, x, P):
     """The gyro bias to zero with its initial spread: a bias learnt while the attitude was
     lost is not to be trusted."""
-    i0 = cfg[C_IBG] + cfg[C_ADD]
-    clear_rows(cfg, P, i0, 3)
     for a in range(3):
         x[X_BG + a] = 0.0
-        P[i0 + a, i0 + a] = prm[R_P0_BG]
+    reopen(cfg, P, cfg[C_IBG], prm[R_P0_BG], prm[R_P0_BG])
 
 
 @njit(**_JIT)
