@@ -75,14 +75,12 @@ def tilt_alerts(
     # every sample's specific force, rotated at CHECK_RATE_HZ (the mean's tau is seconds)
     dt = float(np.median(np.diff(t)))
     step = max(1, int(1.0 / (CHECK_RATE_HZ * dt)))
-    f_b = _fill(imu.f_b)
+    f_b, q = _fill(imu.f_b), _fill(est.q_nb)
     if step > 1:  # the block means of the samples, rotated with the block's middle attitude
         n = len(t) // step * step
         f_b = f_b[:n].reshape(-1, step, 3).mean(axis=1)
-        t, q = t[step // 2 : n : step], _fill(est.q_nb)[step // 2 : n : step]
+        t, q = t[step // 2 : n : step], q[step // 2 : n : step]
         dt *= step
-    else:
-        q = _fill(est.q_nb)
     f_n = quat_rotate(q, f_b)  # a_n - g_n for a right attitude
     g = flight.gnss
     if g is not None and len(g.t) >= 3:
