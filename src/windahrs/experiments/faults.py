@@ -136,7 +136,7 @@ def default_cases(at: float = FAULT_AT_S) -> list[FaultCase]:
         FaultCase("mag-magnet-10s", (MagMagnet(a, 10.0),)),
         FaultCase("mag-drift-30s", (MagDrift(a, 30.0),)),
         FaultCase("mag-absent-15s", (MagAbsent(a, 15.0),)),
-        FaultCase("mag-late-30s", (MagAbsent(0.0, a),)),
+        FaultCase("mag-late", (MagAbsent(0.0, a),)),
         FaultCase("pitot-freeze-10s", (PitotBlockage(a, 10.0, mode="freeze"),)),
         FaultCase("pitot-zero-10s", (PitotBlockage(a, 10.0, mode="zero"),)),
         FaultCase("pitot-ramp-10s", (PitotBlockage(a, 10.0, mode="ramp"),)),
@@ -172,12 +172,13 @@ class FaultRow:
     resets: int = 0
 
     def as_dict(self) -> dict[str, Any]:
+        """The row for JSON: non-finite numbers as None, times and angles to 1e-4."""
         return {k: _json(v) for k, v in self.__dict__.items()}
 
 
 def _json(v: Any) -> Any:
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
+    if isinstance(v, float):
+        return round(v, 4) if math.isfinite(v) else None
     return v
 
 
@@ -378,6 +379,13 @@ def _available(flight: Flight, case: FaultCase) -> str | None:
     return None
 
 
+def check_cases(cases: Sequence[FaultCase], duration: float) -> None:
+    """ValueError naming ``duration`` when a case ends after the flight."""
+    for c in cases:
+        if c.span[1] > duration:
+            raise ValueError(f"duration: expected at least the end of case {c.name} ({c.span[1]:g} s), found {duration:g}")
+
+
 def run_fault_matrix(
     vehicle: str,
     specs: Sequence[str],
@@ -400,9 +408,7 @@ def run_fault_matrix(
     cases = list(default_cases() if cases is None else cases)
     if not cases:
         raise ValueError("cases: expected at least one fault case, found none")
-    for c in cases:
-        if c.span[1] > duration:
-            raise ValueError(f"duration: expected at least the cases' end ({c.name}: {c.span[1]:g} s), found {duration:g}")
+    check_cases(cases, duration)
     scenario = make_scenario(vehicle, wind=wind, duration=duration)
     res = MatrixResult(vehicle=vehicle, wind=wind, duration=duration, seed=seed)
     flight = simulate(scenario, np.random.default_rng(seed))
