@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
     from windahrs.flight import Flight
     from windahrs.metrics import Score
+    from windahrs.sim.faults import Fault
 
 __all__ = ["main"]
 
@@ -88,7 +89,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _faults(specs: list[str] | None) -> list:  # type: ignore[type-arg]
+def _faults(specs: list[str] | None) -> list[Fault]:
     """The --fault specs as faults (FaultError, a ValueError, naming the field)."""
     from windahrs.sim.faults import parse_fault
 

@@ -121,7 +121,9 @@ def default_cases(at: float = FAULT_AT_S) -> list[FaultCase]:
     starting ``at`` s; the late magnetometer starts at 0 s. Sizes: the issue's (a 40 rad/s
     gyro spike, five of them, +50 uT, a 5 m/s GNSS jump) or each fault's default."""
     a = float(at)
-    vib_clip_accel = (VibrationBurst(a, 5.0, accel_amplitude=4.0 * 9.80665, gyro_amplitude=0.0), AccelSaturation(a, 5.0))
+    vib_clip_accel = (
+        VibrationBurst(a, 5.0, accel_amplitude=4.0 * 9.80665, gyro_amplitude=0.0), AccelSaturation(a, 5.0)
+    )
     return [
         FaultCase("gyro-spike", (GyroSpike(a),)),
         FaultCase("gyro-spike-x5", tuple(GyroSpike(a + 0.4 * k, axis=k % 3) for k in range(5))),
@@ -233,8 +235,8 @@ def first_flag(
         sel = (inn.t >= t0) & (inn.t <= hi) & ~inn.accepted
         ts = inn.t[sel]
         if clean is not None and sensor in clean.innovations and len(ts):
-            c = clean.innovations[sensor]
-            ts = ts[~np.isin(ts, c.t[~c.accepted])]
+            ci = clean.innovations[sensor]
+            ts = ts[~np.isin(ts, ci.t[~ci.accepted])]
         if len(ts):
             found.append((float(ts[0]), f"rejected:{sensor}"))
     if flight is not None and sum(est.skipped.values()) > (sum(clean.skipped.values()) if clean else 0):
@@ -252,19 +254,19 @@ def first_flag(
     flags = getattr(est, "flags", None)
     if isinstance(flags, dict):
         cflags = getattr(clean, "flags", {}) if clean is not None else {}
-        for name, f in flags.items():
-            f = np.asarray(f, dtype=bool)
-            if f.shape != est.t.shape:
+        for name, raised in flags.items():
+            on = np.asarray(raised, dtype=bool)
+            if on.shape != est.t.shape:
                 continue
             c = np.asarray(cflags.get(name, np.zeros(0)), dtype=bool)
-            new = f & ~np.isin(est.t, clean.t[c]) if clean is not None and c.shape == clean.t.shape else f
+            new = on & ~np.isin(est.t, clean.t[c]) if clean is not None and c.shape == clean.t.shape else on
             ts = _times_in(est.t[new], t0, hi)
             if len(ts):
                 found.append((float(ts[0]), f"flag:{name}"))
     if not found:
         return None, None
-    t, what = min(found)
-    return t, what
+    t_first, what = min(found)
+    return t_first, what
 
 
 # ---------------------------------------------------------------------------------------------
@@ -340,7 +342,7 @@ def score_fault(
         flag_delay_s=None if flag_t is None else flag_t - t0,
         recover_s=recover,
         rms_before_deg=rms_before,
-        rms_during_deg=_rms(ed) if _rms(ed) is not None else math.nan,
+        rms_during_deg=_rms(ed) or math.nan,
         rms_after_deg=_rms(e[after]),
         max_during_deg=float(np.nanmax(ed)) if np.isfinite(ed).any() else math.nan,
         vehicle=vehicle,
@@ -383,7 +385,9 @@ def check_cases(cases: Sequence[FaultCase], duration: float) -> None:
     """ValueError naming ``duration`` when a case ends after the flight."""
     for c in cases:
         if c.span[1] > duration:
-            raise ValueError(f"duration: expected at least the end of case {c.name} ({c.span[1]:g} s), found {duration:g}")
+            raise ValueError(
+                f"duration: expected at least the end of case {c.name} ({c.span[1]:g} s), found {duration:g}"
+            )
 
 
 def run_fault_matrix(
@@ -465,7 +469,10 @@ def matrix_markdown(results: Sequence[MatrixResult]) -> str:
     )
     for r in results:
         lines += ["", f"## {r.vehicle}, W20 = {r.wind:g} m/s, {r.duration:g} s, seed {r.seed}", ""]
-        lines.append("| fault | filter | NaN | flag (delay s) | before | during | max | after | recover s | RMSE clean -> faulty |")
+        lines.append(
+            "| fault | filter | NaN | flag (delay s) | before | during | max | after | recover s "
+            "| RMSE clean -> faulty |"
+        )
         lines.append("|---|---|---|---|---|---|---|---|---|---|")
         for w in r.rows:
             flag = f"{w.flag_source} ({w.flag_delay_s:.2f})" if w.flagged and w.flag_delay_s is not None else "no"

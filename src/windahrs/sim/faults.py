@@ -142,7 +142,8 @@ class RawFlight:
         )
 
     def stream(self, name: str) -> dict[str, F64] | None:
-        return getattr(self, name)  # type: ignore[no-any-return]
+        out: dict[str, F64] | None = getattr(self, name)
+        return out
 
     def to_flight(self) -> Flight:
         """The streams as a Flight with the original truth, site and meta (meta["faults"]
@@ -181,7 +182,7 @@ class RawFlight:
             raise FaultError("path", "a directory that does not exist yet", f"{target} exists")
         parent = target.parent if str(target.parent) else Path(".")
         if not parent.is_dir():
-            raise FaultError("path", f"a path in an existing directory", f"{parent} does not exist")
+            raise FaultError("path", "a path in an existing directory", f"{parent} does not exist")
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
         try:
             self._write_csv(tmp)
@@ -197,15 +198,17 @@ class RawFlight:
         if f.site.mag_n is not None:
             man.append(f"mag_n = [{', '.join(repr(float(v)) for v in f.site.mag_n)}]")
         man.append(f"gravity = {f.site.gravity!r}")
-        _csv(d / "imu.csv", ["t", "wx", "wy", "wz", "fx", "fy", "fz"], [self.imu["t"], self.imu["w_b"], self.imu["f_b"]])
-        man += ["", "[imu]", 'file = "imu.csv"', 'time = "t"', 'time_unit = "s"', 'gyro = ["wx", "wy", "wz"]', 'gyro_unit = "rad/s"',
+        imu = self.imu
+        _csv(d / "imu.csv", ["t", "wx", "wy", "wz", "fx", "fy", "fz"], [imu["t"], imu["w_b"], imu["f_b"]])
+        clock = ['time = "t"', 'time_unit = "s"']
+        man += ["", "[imu]", 'file = "imu.csv"', *clock, 'gyro = ["wx", "wy", "wz"]', 'gyro_unit = "rad/s"',
                 'accel = ["fx", "fy", "fz"]', 'accel_unit = "m/s^2"']
         if self.mag is not None:
             _csv(d / "mag.csv", ["t", "mx", "my", "mz"], [self.mag["t"], self.mag["mag_b"] * 1e6])
-            man += ["", "[mag]", 'file = "mag.csv"', 'time = "t"', 'time_unit = "s"', 'columns = ["mx", "my", "mz"]', 'unit = "uT"']
+            man += ["", "[mag]", 'file = "mag.csv"', *clock, 'columns = ["mx", "my", "mz"]', 'unit = "uT"']
         if self.gnss is not None:
             _csv(d / "gnss.csv", ["t", "vn", "ve", "vd"], [self.gnss["t"], self.gnss["v_n"]])
-            man += ["", "[gnss]", 'file = "gnss.csv"', 'time = "t"', 'time_unit = "s"', 'velocity = ["vn", "ve", "vd"]', 'unit = "m/s"']
+            man += ["", "[gnss]", 'file = "gnss.csv"', *clock, 'velocity = ["vn", "ve", "vd"]', 'unit = "m/s"']
         if self.air is not None:
             cols, header = [self.air["t"], self.air["tas"]], ["t", "tas"]
             for name in ("aoa", "sideslip"):
@@ -213,11 +216,11 @@ class RawFlight:
                     cols.append(self.air[name])
                     header.append(name)
             _csv(d / "air.csv", header, cols)
-            man += ["", "[air]", 'file = "air.csv"', 'time = "t"', 'time_unit = "s"', 'tas = "tas"']
+            man += ["", "[air]", 'file = "air.csv"', *clock, 'tas = "tas"']
             man += [f'{name} = "{name}"' for name in header[2:]] + ['unit = "m/s"', 'angle_unit = "rad"']
         if f.truth is not None:
             _csv(d / "att.csv", ["t", "qw", "qx", "qy", "qz"], [f.truth.t, f.truth.q_nb])
-            man += ["", "[reference]", 'file = "att.csv"', 'time = "t"', 'time_unit = "s"', 'kind = "truth"',
+            man += ["", "[reference]", 'file = "att.csv"', *clock, 'kind = "truth"',
                     'quaternion = ["qw", "qx", "qy", "qz"]']
         (d / "windahrs.toml").write_text("\n".join(man) + "\n")
 
@@ -232,6 +235,12 @@ def _csv(path: Path, header: list[str], columns: list[F64]) -> None:
 
 # ---------------------------------------------------------------------------------------------
 # the faults
+
+
+def _num(v: float) -> str:
+    """The shortest text that reads back as exactly ``v``."""
+    short = format(v, "g")
+    return short if float(short) == v else repr(v)
 
 
 def _float(owner: str, name: str, value: object) -> float:
@@ -303,7 +312,7 @@ class Fault:
         parts = [self.kind]
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            text = ",".join(f"{x:.12g}" for x in v) if isinstance(v, tuple) else (f"{v:.12g}" if isinstance(v, float) else str(v))
+            text = ",".join(map(_num, v)) if isinstance(v, tuple) else (_num(v) if isinstance(v, float) else str(v))
             parts.append(f"{f.name}={text}")
         return ":".join(parts)
 
