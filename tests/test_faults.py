@@ -255,3 +255,15 @@ def test_simulate_with_faults(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert main(["simulate", "--duration", "3", "--fault", "gyro-spike:start=1:magnitude=x", "--out",
                  str(tmp_path / "h.h5")]) == 2
     assert capsys.readouterr().err.strip().endswith("GyroSpike.magnitude: expected a float, found 'x'")
+
+
+def test_front_door_simulate_with_faults() -> None:
+    faults = [F.GnssOutage(start=1.0, duration=1.0), F.VibrationBurst(start=2.0, duration=0.5)]
+    a = wa.simulate("fixedwing", seed=4, duration=3.0, faults=faults)
+    b = wa.simulate("fixedwing", seed=4, duration=3.0, faults=faults)
+    clean = wa.simulate("fixedwing", seed=4, duration=3.0)
+    np.testing.assert_array_equal(a.imu.f_b, b.imu.f_b)
+    np.testing.assert_array_equal(a.truth.q_nb, clean.truth.q_nb)  # type: ignore[union-attr]
+    assert a.gnss is not None and len(a.gnss.t) == 21 and "gnss-outage" in a.meta["faults"]
+    with pytest.raises(F.FaultError, match=r"faults\[0\]: expected a Fault"):
+        wa.simulate("fixedwing", seed=4, duration=3.0, faults=["gyro-spike"])  # type: ignore[list-item]
