@@ -194,6 +194,18 @@ def test_first_flag_counts_only_what_the_clean_run_did_not() -> None:
     assert first_flag(est([5.7], reset), clean, 5.0) == (pytest.approx(5.4), "reset:accel")
 
 
+def test_first_flag_reads_per_sample_flags_when_the_estimate_has_them() -> None:
+    t = np.arange(0.0, 10.0, 0.1)
+
+    def est(on: list[float]) -> Estimate:
+        e = Estimate(filter="x", t=t, q_nb=np.tile([1.0, 0, 0, 0], (len(t), 1)))
+        object.__setattr__(e, "flags", {"imu_spike": np.isin(np.round(t, 6), on)})
+        return e
+
+    assert first_flag(est([2.0, 5.3]), est([2.0]), 5.0) == (pytest.approx(5.3), "flag:imu_spike")
+    assert first_flag(est([2.0, 5.3]), est([2.0, 5.3]), 5.0) == (None, None)
+
+
 def test_recovery_time() -> None:
     t = np.arange(0.0, 20.0, 0.01)
     e = np.where((t > 5) & (t < 8), 10.0, 1.0)

@@ -7,7 +7,8 @@ between estimate and truth, deg) and ``[t0, t1]`` the case's span (the union of 
 spans):
 
 * ``rms_before_deg``: RMS of e over ``[max(t0 - 10 s, 5 s), t0)`` (the filters are causal, so
-  this is the clean run's as well); None when the fault starts before 10 s.
+  this is the clean run's as well); None when the fault starts before 15 s (no full
+  window after the start-up).
 * ``rms_during_deg``, ``max_during_deg``: RMS and largest e over ``[t0, max(t1, t0 + 1 s)]``
   (at least a second, so that an instantaneous fault's first effect is inside).
 * ``rms_after_deg``: RMS of e from ``t1 + 10 s`` (the recovery allowance) to the flight's end.
