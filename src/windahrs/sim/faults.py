@@ -496,8 +496,9 @@ class VibrationBurst(Fault):
     """A sinusoidal vibration of ``frequency`` Hz on every axis (random phase per axis),
     ``accel_amplitude`` m/s^2 and ``gyro_amplitude`` rad/s peak, sampled at the IMU's stamps
     (a frequency above half the IMU rate aliases, as in a sensor without an anti-alias
-    filter). Defaults: 3 g and 0.5 rad/s at 80 Hz, a loose or unbalanced propeller (PX4's
-    vibration guide calls accelerometer vibration beyond about 30 m/s^2 a problem)."""
+    filter). Defaults: 3 g and 0.5 rad/s at 80 Hz, a loose or unbalanced propeller: 3 g peak is
+    21 m/s^2 RMS, near the 30 m/s^2 beyond which ArduPilot's "Measuring Vibration" page says
+    its VIBE levels may give problems (above 60 m/s^2 nearly always)."""
 
     accel_amplitude: float = 3.0 * G0
     gyro_amplitude: float = 0.5
