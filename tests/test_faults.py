@@ -13,6 +13,7 @@ import pytest
 import windahrs as wa
 from windahrs.cli import main
 from windahrs.estimate import Estimate, Innovations
+from windahrs.flags import FLAGS
 from windahrs.experiments.faults import FaultCase, first_flag, recovery_time, run_fault_matrix
 from windahrs.flight import Flight
 from windahrs.io import read_flight
@@ -198,11 +199,11 @@ def test_first_flag_reads_per_sample_flags_when_the_estimate_has_them() -> None:
     t = np.arange(0.0, 10.0, 0.1)
 
     def est(on: list[float]) -> Estimate:
-        e = Estimate(filter="x", t=t, q_nb=np.tile([1.0, 0, 0, 0], (len(t), 1)))
-        object.__setattr__(e, "flags", {"imu_spike": np.isin(np.round(t, 6), on)})
-        return e
+        bit = np.uint32(1 << FLAGS["imu_held"][0])
+        flags = np.where(np.isin(np.round(t, 6), on), bit, np.uint32(0)).astype(np.uint32)
+        return Estimate(filter="x", t=t, q_nb=np.tile([1.0, 0, 0, 0], (len(t), 1)), flags=flags)
 
-    assert first_flag(est([2.0, 5.3]), est([2.0]), 5.0) == (pytest.approx(5.3), "flag:imu_spike")
+    assert first_flag(est([2.0, 5.3]), est([2.0]), 5.0) == (pytest.approx(5.3), "flag:imu_held")
     assert first_flag(est([2.0, 5.3]), est([2.0, 5.3]), 5.0) == (None, None)
 
 

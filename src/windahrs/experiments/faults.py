@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from windahrs.estimate import Estimate
 from windahrs.filters.base import MissingSensorError
 from windahrs.filters.registry import make_estimator
+from windahrs.flags import FLAGS
 from windahrs.flight import Flight
 from windahrs.metrics import attitude_errors, score
 from windahrs.sim.faults import (
@@ -219,8 +220,8 @@ def first_flag(
       acceleration on the accelerometer);
     * NaN samples skipped (``Estimate.skipped``, a count per stream: more than the clean
       run's), timed at the flight's first non-finite sample in the window;
-    * per-sample flags, when the Estimate carries them (``flags``: name -> (N,) bool on
-      ``Estimate.t``), raised where the clean run's are not.
+    * the per-sample flags (``Estimate.flags``, :data:`windahrs.flags.FLAGS`), raised
+      where the clean run's are not.
     """
     hi = t0 + window
     found: list[tuple[float, str]] = []
@@ -252,15 +253,13 @@ def first_flag(
             ts = _times_in(t[bad], t0, hi)
             if len(ts) and est.skipped.get(name, 0) > (clean.skipped.get(name, 0) if clean else 0):
                 found.append((float(ts[0]), f"skipped:{name}"))
-    flags = getattr(est, "flags", None)
-    if isinstance(flags, dict):
-        cflags = getattr(clean, "flags", {}) if clean is not None else {}
-        for name, raised in flags.items():
-            on = np.asarray(raised, dtype=bool)
-            if on.shape != est.t.shape:
-                continue
-            c = np.asarray(cflags.get(name, np.zeros(0)), dtype=bool)
-            new = on & ~np.isin(est.t, clean.t[c]) if clean is not None and c.shape == clean.t.shape else on
+    if est.flags is not None:
+        for name, (bit, _) in FLAGS.items():
+            on = (est.flags >> np.uint32(bit)) & np.uint32(1) == 1
+            new = on
+            if clean is not None and clean.flags is not None:
+                c = (clean.flags >> np.uint32(bit)) & np.uint32(1) == 1
+                new = on & ~np.isin(est.t, clean.t[c])
             ts = _times_in(est.t[new], t0, hi)
             if len(ts):
                 found.append((float(ts[0]), f"flag:{name}"))
@@ -276,12 +275,12 @@ def first_flag(
 
 def nan_rows(est: Estimate) -> int:
     """Rows of the estimate with a non-finite attitude, bias, velocity, wind or covariance."""
-    bad = ~np.isfinite(est.q_nb).all(axis=1)
+    bad = np.asarray(~np.isfinite(est.q_nb).all(axis=1))
     for a in (est.gyro_bias_b, est.v_n, est.wind_n):
         if a is not None:
             bad |= ~np.isfinite(a).all(axis=1)
     if est.cov is not None:
-        bad |= ~np.isfinite(est.cov.reshape(len(est.t), -1)).all(axis=1)
+        bad[est.cov_rows] |= ~np.isfinite(est.cov.reshape(len(est.cov), -1)).all(axis=1)
     return int(bad.sum())
 
 
