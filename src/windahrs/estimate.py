@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.flight import FlightError
-from windahrs.store import atomic_h5, open_h5, read_errors, read_record, write_record
+from windahrs.repair import repairs_text
+from windahrs.store import atomic_h5, open_h5, read_errors, read_record, read_repairs, write_record, write_repairs
 
 __all__ = ["ESTIMATE_FORMAT", "Estimate", "EstimatorWarning", "Innovations", "load_estimate", "save_estimate"]
 
@@ -84,7 +85,9 @@ class Estimate:
     long the sensor had been kept out s]; :meth:`warnings` says them in words. alerts: what
     the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
     [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
-    the mean specific force (lost gravity).
+    the mean specific force (lost gravity). repairs: what the edge repaired in the input
+    flight before the run (``Flight.repairs``: stream -> kind -> count, see
+    :mod:`windahrs.repair`).
     """
 
     filter: str
@@ -101,6 +104,7 @@ class Estimate:
     meta: dict[str, Any] = field(default_factory=dict)
     resets: dict[str, F64] = field(default_factory=dict)
     alerts: dict[str, F64] = field(default_factory=dict)
+    repairs: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -131,11 +135,15 @@ class Estimate:
         """Attitude error covariance (N, 3, 3), body-frame rotation vector, rad^2."""
         return self.block("att_")
 
-    def warnings(self) -> list[str]:
-        """One line per thing the user must know, naming the estimator, what and when: each
-        reset (see ``resets``), and each gated sensor of which less than
-        :data:`LOW_ACCEPTANCE` of the samples were accepted."""
+    def warnings(self, *, repairs: bool = True) -> list[str]:
+        """One line per thing the user must know, naming the estimator, what and when: the
+        repairs of its input (``repairs``; left out with ``repairs=False``), each reset (see
+        ``resets``), and each gated sensor of which less than :data:`LOW_ACCEPTANCE` of the
+        samples were accepted."""
         out = []
+        text = repairs_text(self.repairs) if repairs else None
+        if text:
+            out.append(f"{self.filter}: input repaired at the edge: {text}")
         for sensor, rows in self.resets.items():
             for t, size, out_for in rows:
                 if sensor == "accel":
@@ -185,6 +193,7 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
             grp = f.create_group(name)
             for k, v in getattr(est, name).items():
                 grp.create_dataset(k, data=v)
+        write_repairs(f, est.repairs)
     return Path(path)
 
 
@@ -206,6 +215,7 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             meta=dict(f["meta"].attrs.items()),
             resets=_float_group(f, "resets"),
             alerts=_float_group(f, "alerts"),
+            repairs=read_repairs(f),
             **arrays,
         )
 

@@ -51,6 +51,7 @@ __all__ = [
     "REPAIR_KINDS",
     "SPIKE_SHARE",
     "RepairLog",
+    "RepairWarning",
     "beyond_range",
     "clean_series",
     "finite_rows",
@@ -101,6 +102,11 @@ ANGLE_RANGE = float(np.pi)
 #: bulk of the data, not spikes: a unit slip, refused by the stream's validation. A glitch
 #: is one or a few samples; 1 % is 2 s of a 200 Hz IMU.
 SPIKE_SHARE = 0.01
+
+
+class RepairWarning(UserWarning):
+    """The input of a flight was repaired at the edge (``Flight.repairs`` says how); the
+    command line says so once per flight it reads."""
 
 
 def clean_series(

@@ -10,8 +10,9 @@ error theta moves it by ``2 g sin(theta / 2)``, read back as an angle. A disagre
 ``TILT_LIMIT_DEG`` held for ``TILT_HOLD_S`` is an alert: the estimator has lost gravity
 (upside-down start, a lock-out by its gate, divergence), whatever it believes of itself.
 
-:func:`checked` adds the alerts to an Estimate and emits each of ``Estimate.warnings()`` as an
-:class:`~windahrs.estimate.EstimatorWarning`.
+:func:`checked` adds the alerts and the flight's repairs to an Estimate and emits each of
+``Estimate.warnings()`` as an :class:`~windahrs.estimate.EstimatorWarning`, but the repairs:
+they are the flight's, the same for every estimator, and said once where the flight is read.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from windahrs.estimate import Estimate, EstimatorWarning
 from windahrs.flight import Flight
 from windahrs.rotation import quat_rotate
 
-__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts"]
+__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts", "with_repairs"]
 
 F64 = NDArray[np.float64]
 
@@ -110,12 +111,20 @@ def tilt_alerts(
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
+def with_repairs(est: Estimate, flight: Flight) -> Estimate:
+    """``est`` carrying ``flight.repairs`` (a copy)."""
+    if not flight.repairs:
+        return est
+    return dataclasses.replace(est, repairs={k: dict(v) for k, v in flight.repairs.items()})
+
+
 def checked(est: Estimate, flight: Flight) -> Estimate:
-    """``est`` with its tilt alerts (``alerts["tilt"]``), each of its warnings emitted as an
-    EstimatorWarning."""
+    """``est`` with its tilt alerts (``alerts["tilt"]``) and the flight's repairs, each of its
+    warnings but the repairs emitted as an EstimatorWarning."""
     rows = tilt_alerts(est, flight)
     if len(rows):
         est = dataclasses.replace(est, alerts={**est.alerts, "tilt": rows})
-    for line in est.warnings():
+    est = with_repairs(est, flight)
+    for line in est.warnings(repairs=False):
         warnings.warn(line, EstimatorWarning, stacklevel=3)
     return est
