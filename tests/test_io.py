@@ -177,7 +177,7 @@ def test_clean_series_sorts_and_keeps_first() -> None:
     np.testing.assert_array_equal(v2, [10, 11, 12, 13, 14])
     assert counts == {"unsortable": 0, "reordered": 2, "duplicates": 1}
     # a non-finite stamp cannot be placed in time: dropped and counted
-    t3, (v3,), counts = clean_series(np.array([0.0, np.nan, 1.0]), np.array([1.0, 2.0, 3.0]))
+    _, (v3,), counts = clean_series(np.array([0.0, np.nan, 1.0]), np.array([1.0, 2.0, 3.0]))
     np.testing.assert_array_equal(v3, [1.0, 3.0])
     assert counts == {"unsortable": 1, "reordered": 0, "duplicates": 0}
 

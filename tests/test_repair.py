@@ -66,7 +66,7 @@ def test_from_arrays_repairs_and_counts() -> None:
 
 
 def test_strict_refuses_each_glitch() -> None:
-    t, g, a, m = raw_imu()
+    t, g, a, _ = raw_imu()
     dup = t.copy()
     dup[10] = dup[9]
     with pytest.raises(FlightError, match=r"^t: expected strictly increasing time, found t\[9\]"):

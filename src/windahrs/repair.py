@@ -157,7 +157,7 @@ def beyond_range(a: NDArray[Any], limit: float) -> tuple[NDArray[np.bool_], floa
     x = np.abs(np.asarray(a, dtype=np.float64))
     x = x.reshape(len(x), -1)
     with np.errstate(invalid="ignore"):
-        over = (np.isfinite(x) & (x > limit)).any(axis=1)
+        over: NDArray[np.bool_] = np.asarray((np.isfinite(x) & (x > limit)).any(axis=1))
     finite = int(np.count_nonzero(np.isfinite(x).any(axis=1)))
     return over, (float(np.count_nonzero(over)) / finite if finite else 0.0)
 
