@@ -107,6 +107,7 @@ class _Table:
     values: dict[str, F64]
     dropped_last_row: bool
     stripped: tuple[str, ...] = ()  # wanted columns whose header entry has blanks around
+    untimed_rows: int = 0  # rows dropped for an empty or non-finite time stamp
 
 
 def _read_table(
@@ -114,8 +115,10 @@ def _read_table(
 ) -> _Table:
     """Read ``time_col`` and ``columns`` of a CSV file with a header row.
 
-    Empty cells are NaN (missing samples). A final row with too few fields (a file cut
-    while being written) is dropped and flagged; any other malformed row is an error.
+    Empty cells are NaN (missing samples). A row whose time stamp is empty, NaN or inf
+    cannot be placed in time: it is dropped and counted (``untimed_rows``). A final row
+    with too few fields (a file cut while being written) is dropped and flagged; any other
+    malformed row is an error.
     Header names are compared after stripping blanks (spaces, tabs) around them; a column
     found only that way is named in one warning per file (``warn_stripped``; off for
     formats whose files are known to pad their header, e.g. ANSFL's DJI log).
@@ -176,11 +179,28 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
         for k, i in enumerate(idx):
             cells[k].append(row[i].strip())
     linenos = [n for n, _ in rows]
+    timed = [k for k, c in enumerate(cells[0]) if not _untimed(c)]
+    untimed = len(linenos) - len(timed)
+    if untimed:
+        cells = [[col[k] for k in timed] for col in cells]
+        linenos = [linenos[k] for k in timed]
+    if not linenos:
+        raise LogFormatError(path, f"no data rows with a time stamp in column {time_col!r}")
     time = _parse_time(path, time_col, cells[0], linenos)
     values = {
         c: _parse_floats(path, c, v, linenos) for c, v in zip(columns, cells[1:], strict=True)
     }
-    return _Table(path, time, values, dropped, stripped)
+    return _Table(path, time, values, dropped, stripped, untimed)
+
+
+def _untimed(cell: str) -> bool:
+    """An empty, NaN or infinite time stamp (a number, but not a time)."""
+    if not cell:
+        return True
+    try:
+        return not math.isfinite(float(cell))
+    except ValueError:
+        return False  # not a number: an error, named by _parse_time
 
 
 def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Table | None:
@@ -264,6 +284,7 @@ def _seconds(
     ``rep``) and values."""
     keys = list(table.values)
     t, vals = rep.series(name, table.time, *[table.values[k] for k in keys])
+    rep.add(name, "unsortable", table.untimed_rows)
     if table.dropped_last_row:
         meta[f"{name}.dropped_truncated_row"] = 1
         warn_truncated(table.path, f"its last row has too few fields: read up to line {len(table.time) + 1}, "
