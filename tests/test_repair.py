@@ -48,7 +48,7 @@ def glitched(n: int = 2000) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     return t[order], g[order], a[order], m[order]
 
 
-EXPECTED_IMU = {"reordered": 2, "duplicates": 1, "non_finite": 1, "out_of_range": 2}
+EXPECTED_IMU = {"reordered": 2, "duplicates": 1, "infinite": 1, "out_of_range": 2}
 
 
 def test_from_arrays_repairs_and_counts() -> None:
@@ -109,11 +109,13 @@ def test_constructor_repairs_nothing_and_checks_units_on_the_bulk() -> None:
 
 def test_repair_log_ranges() -> None:
     log = RepairLog()
-    a = np.array([[0.0, 0.0, -9.8], [0.0, 0.0, 1.01 * ACCEL_RANGE], [np.nan, 0.0, 0.0]] + [[0.0, 0.0, -9.8]] * 200)
+    a = np.array([[0.0, 0.0, -9.8], [0.0, 0.0, 1.01 * ACCEL_RANGE], [np.nan, 0.0, 0.0], [0.0, -np.inf, 0.0]]
+                 + [[0.0, 0.0, -9.8]] * 200)
     out = log.rows("imu", a, ACCEL_RANGE)
-    assert log.counts == {"imu": {"non_finite": 1, "out_of_range": 1}}
-    assert np.isnan(out[1]).all() and np.isnan(out[2]).all() and np.isfinite(a[1]).all()  # a copy
-    assert repairs_text(log.counts) == "imu: 1 sample non-finite (missing), 1 sample beyond the sensor range set to NaN"
+    # the NaN is a missing sample (the whole row NaN), not a repair; the inf is one
+    assert log.counts == {"imu": {"infinite": 1, "out_of_range": 1}}
+    assert np.isnan(out[1:4]).all() and np.isfinite(out[[0, 4]]).all() and np.isfinite(a[1]).all()  # a copy
+    assert repairs_text(log.counts) == "imu: 1 sample infinite set to NaN, 1 sample beyond the sensor range set to NaN"
     with pytest.raises(FlightError, match=r"repairs\['imu'\]"):
         Flight.from_arrays(*raw_imu()[:3]).replace(repairs={"imu": {"spikes": 1}})
 

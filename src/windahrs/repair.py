@@ -12,7 +12,10 @@ kind               what is done
 ``reordered``      rows out of time order are sorted (stable); counted: rows moved
 ``duplicates``     a repeated time stamp keeps its first row (first in the file); the
                    others are dropped
-``non_finite``     a row holding NaN or +-inf is a missing sample: the whole row is NaN
+``infinite``       a row holding +-inf (no sensor measures it: a parser's or a logger's
+                   overflow) becomes NaN, a missing sample. A NaN is the documented
+                   missing sample, not a repair: the row becomes all NaN (a row with any
+                   NaN is missing) and is counted as missing, not here
 ``out_of_range``   a row with a component beyond the sensor's range (:data:`GYRO_RANGE`,
                    :data:`ACCEL_RANGE`, ...) cannot have been measured: it becomes NaN, a
                    missing sample, unless more than :data:`SPIKE_SHARE` of the finite rows
@@ -61,14 +64,14 @@ __all__ = [
 F64 = NDArray[np.float64]
 
 #: The kinds of repair, in the order they are applied and reported.
-REPAIR_KINDS: tuple[str, ...] = ("unsortable", "reordered", "duplicates", "non_finite", "out_of_range")
+REPAIR_KINDS: tuple[str, ...] = ("unsortable", "reordered", "duplicates", "infinite", "out_of_range")
 
 #: Words for each kind in :func:`repairs_text`.
 _KIND_TEXT = {
     "unsortable": "with a non-finite time stamp dropped",
     "reordered": "out of order sorted",
     "duplicates": "with a repeated time stamp dropped",
-    "non_finite": "non-finite (missing)",
+    "infinite": "infinite set to NaN",
     "out_of_range": "beyond the sensor range set to NaN",
 }
 
@@ -190,15 +193,14 @@ class RepairLog:
         return t, vals
 
     def rows(self, stream: str, a: NDArray[Any], limit: float | None = None) -> F64:
-        """``a`` ((N,) or (N, k)) as floats, its rows with a non-finite value NaN (counted
-        ``non_finite``) and, given the sensor's ``limit``, its rows beyond it NaN (counted
+        """``a`` ((N,) or (N, k)) as floats, its rows with a non-finite value NaN (those with
+        an inf counted ``infinite``) and, given the sensor's ``limit``, its rows beyond it NaN (counted
         ``out_of_range``) unless they are more than :data:`SPIKE_SHARE` of the finite rows
         (a unit slip: left as they are for the stream's validation to refuse)."""
         out = np.array(a, dtype=np.float64)
         x = out.reshape(len(out), -1)
-        bad = ~np.isfinite(x).all(axis=1)
-        self.add(stream, "non_finite", int(np.count_nonzero(bad)))
-        x[bad] = np.nan
+        self.add(stream, "infinite", int(np.count_nonzero(np.isinf(x).any(axis=1))))
+        x[~np.isfinite(x).all(axis=1)] = np.nan
         if limit is not None:
             over, share = beyond_range(x, limit)
             if share <= SPIKE_SHARE:
