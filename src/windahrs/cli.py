@@ -453,7 +453,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Read a windahrs flight file or any log or dataset the readers know (.ulg, .bin/.log, "
         "BROAD .hdf5, an ALFA, generic-CSV or ANSFL directory) and print its format, its streams with their "
         "rates, missing samples and gaps, the duration, whether truth or a reference is present (and which "
-        "kind), the site and the reader's notes (meta).",
+        "kind), the site, what the reader repaired (samples out of order, repeated stamps, infinite values and "
+        "samples beyond the sensor's range: a count per stream and kind) and the reader's notes (meta).",
     )
     i.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
     i.set_defaults(func=_cmd_info)
