@@ -107,6 +107,10 @@ def read_dataflash(
     instance (``I`` field) to read. core: which EKF core (``C`` field) gives the reference
     attitude and wind.
 
+    A binary log cut inside its last message is read up to the message before, with a
+    TruncatedLogWarning and ``meta["dataflash.truncated_bytes"]``; the samples are repaired
+    as :mod:`windahrs.repair` says (``Flight.repairs``).
+
     Raises LogFormatError (missing, empty, not DataFlash, no IMU messages) and FlightError
     (values failing validation; field prefixed by the file).
     """

@@ -124,6 +124,10 @@ def read_ulog(
     ``"airspeed"`` (by default the validated one, which PX4 logs at a lower rate on some
     versions).
 
+    A file cut inside its last message is read up to the message before, with a
+    TruncatedLogWarning and ``meta["ulog.truncated_bytes"]``; the samples are repaired as
+    :mod:`windahrs.repair` says (``Flight.repairs``).
+
     Raises LogFormatError (file missing, not a ULog, truncated before the IMU data, no
     ``sensor_combined``) and FlightError (values failing validation; field prefixed by
     the file).
