@@ -16,6 +16,12 @@ the test instead of hanging CI; hypothesis' deadline reports slow reads. A diffe
 test checks the CSV reader's numpy fast path against its row-by-row reader, and the bugs
 the fuzzing found are pinned by regression tests.
 
+The repair paths (windahrs.repair) are fuzzed with glitches a real log has rather than
+random bytes: rows written twice, rows swapped, spikes of any size, NaN and inf in values
+and time stamps, in the arrays of ``Flight.from_arrays`` (with and without ``strict``) and
+in the rows of a CSV file. The result is a repaired Flight whose counts account for every
+row and that holds no finite sample beyond the sensor ranges, or a documented error.
+
 Bounded and reproducible: ``derandomize=True``, no example database, 100 examples per seed
 (about 20 s in all on two cores).
 """
