@@ -100,8 +100,6 @@ def test_estimate_from_arrays_equals_the_estimate_of_the_flight(flight: wa.Fligh
          "t: expected strictly increasing time, found t[1] = 0.1 then t[2] = 0.1"),
         ({"t": [0.0, 0.1, 0.2, 0.3, np.inf], "strict": True},
          "t: expected finite values or NaN for a missing sample, found inf at row 4"),
-        ({"rate": 10.0, "gyro": np.array([[0.0, 0.0, 0.0]] * 4 + [[40.0, 0.0, 0.0]]), "strict": True},
-         "gyro: expected |component| within 38.4 rad/s (the sensor's range, windahrs.repair), found 40 at row 4"),
         ({"t": np.arange(4.0)}, "t: expected 5 time stamps (one per gyro row), found 4"),
         ({"rate": -1.0}, "rate: expected a sample rate > 0 Hz, found -1.0"),
         ({"rate": 10.0, "gyro_units": "rpm"}, "gyro_units: expected one of 'rad/s', 'deg/s', found 'rpm'"),

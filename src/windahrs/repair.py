@@ -158,7 +158,7 @@ def beyond_range(a: NDArray[Any], limit: float) -> tuple[NDArray[np.bool_], floa
     """Rows of ``a`` ((N,) or (N, k)) with a finite component beyond ``+-limit``, and their
     share of the rows with a finite value (0 when none)."""
     x = np.abs(np.asarray(a, dtype=np.float64))
-    x = x.reshape(len(x), -1)
+    x = x if x.ndim == 2 else x.reshape(len(x), 1)
     with np.errstate(invalid="ignore"):
         over: NDArray[np.bool_] = np.asarray((np.isfinite(x) & (x > limit)).any(axis=1))
     finite = int(np.count_nonzero(np.isfinite(x).any(axis=1)))
@@ -198,7 +198,7 @@ class RepairLog:
         ``out_of_range``) unless they are more than :data:`SPIKE_SHARE` of the finite rows
         (a unit slip: left as they are for the stream's validation to refuse)."""
         out = np.array(a, dtype=np.float64)
-        x = out.reshape(len(out), -1)
+        x = out if out.ndim == 2 else out.reshape(len(out), 1)  # a view: edits reach out
         self.add(stream, "infinite", int(np.count_nonzero(np.isinf(x).any(axis=1))))
         x[~np.isfinite(x).all(axis=1)] = np.nan
         if limit is not None:
