@@ -54,6 +54,7 @@ from windahrs.io.edge import (
 from windahrs.repair import (
     ACCEL_RANGE,
     AIRSPEED_RANGE,
+    ANGLE_RANGE,
     GNSS_VELOCITY_RANGE,
     GYRO_RANGE,
     MAG_RANGE,
@@ -730,7 +731,7 @@ def _csv_air(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], re
     ka = _ANGLE[man.choice("air", "angle_unit", _ANGLE, "rad")]
     # One vane alone: the stream stores the other angle as NaN (samples without vanes).
     vanes = {
-        name: finite_rows(v[man.text("air", name)]) * ka if man.has("air", name) else None
+        name: rep.rows("air", v[man.text("air", name)] * ka, ANGLE_RANGE) if man.has("air", name) else None
         for name in ("aoa", "sideslip")
     }
     return AirDataStream(t=t, tas=tas, **vanes)

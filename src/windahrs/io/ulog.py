@@ -57,6 +57,7 @@ from windahrs.io.edge import (
 from windahrs.repair import (
     ACCEL_RANGE,
     AIRSPEED_RANGE,
+    ANGLE_RANGE,
     GNSS_VELOCITY_RANGE,
     GYRO_RANGE,
     MAG_RANGE,
@@ -381,13 +382,13 @@ def _air(
         meta["air.topic"] = topics.used[name]
         tas = np.asarray(d["true_airspeed_m_s"], dtype=np.float64)
         t, (tas,) = _clean("air", _stamps(d), t0, rep, tas)
-        aoa, slip = _vanes(topics, t, t0, meta)
+        aoa, slip = _vanes(topics, t, t0, meta, rep)
         return AirDataStream(t=t, tas=rep.rows("air", tas, AIRSPEED_RANGE), aoa=aoa, sideslip=slip)
     return None
 
 
 def _vanes(
-    topics: _Topics, t: NDArray[np.float64], t0: int, meta: dict[str, Any]
+    topics: _Topics, t: NDArray[np.float64], t0: int, meta: dict[str, Any], rep: RepairLog
 ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
     """Angle of attack and sideslip (rad) on the airspeed's time grid, or (None, None).
 
@@ -406,6 +407,7 @@ def _vanes(
         if "valid" in d:
             a = np.where(np.asarray(d["valid"]) != 0, a, np.nan)
         tv, (a,), _ = clean_series(_stamps(d), a)
+        a = rep.rows("air", a, ANGLE_RANGE)
         out.append(np.interp(t, (tv - t0) * _US, a, left=np.nan, right=np.nan))
     meta["air.vanes"] = "airflow_aoa/airflow_slip interpolated onto airspeed times"
     return out[0], out[1]
