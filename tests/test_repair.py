@@ -166,6 +166,34 @@ def test_csv_flight_repaired_and_reported_by_info_and_estimate(
     assert load_estimate(tmp_path / "e.h5").repairs == f.repairs
 
 
+def test_csv_every_stream_repaired_and_counted(tmp_path: Path, rng: np.random.Generator) -> None:
+    """Glitches beyond each sensor's range, one per stream (the rest of the rows as written):
+    magnetometer 10 mT, GNSS 600 m/s, airspeed 2000 km/h, a 500 deg vane, an inf."""
+    flight = make_flight(rng)
+    d = write_csv_dir(flight, tmp_path / "rec")
+
+    def cell(name: str, row: int, col: int, value: str) -> None:
+        lines = (d / name).read_text().splitlines()
+        cells = lines[row + 1].split(",")
+        cells[col] = value
+        lines[row + 1] = ",".join(cells)
+        (d / name).write_text("\n".join(lines) + "\n")
+
+    cell("mag.csv", 5, 1, "10000")  # uT
+    cell("gnss.csv", 3, 2, "600")
+    cell("air.csv", 7, 1, "2000")  # km/h
+    cell("air.csv", 9, 2, "500")  # deg
+    cell("air.csv", 11, 3, "-inf")
+    f = read_flight(d)
+    assert f.repairs == {"mag": {"out_of_range": 1}, "gnss": {"out_of_range": 1},
+                         "air": {"infinite": 1, "out_of_range": 2}}
+    assert f.mag is not None and f.gnss is not None and f.air is not None and f.air.aoa is not None
+    assert np.isnan(f.mag.mag_b[5]).all() and np.isnan(f.gnss.v_n[3]).all() and np.isnan(f.air.tas[7])
+    assert np.isnan(f.air.aoa[9]) and np.isfinite(f.air.tas[9])  # a bad vane leaves the airspeed
+    assert f.air.sideslip is not None and np.isnan(f.air.sideslip[11])
+    assert np.isfinite(f.mag.mag_b[[4, 6]]).all() and np.isfinite(f.air.aoa[[8, 10]]).all()
+
+
 def test_arrays_flight_reported_by_cli_compare(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     t, g, a, m = glitched()
     level = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))  # a reference to score against

@@ -50,6 +50,7 @@ from windahrs.repair import (
     RepairLog,
     beyond_range,
     finite_rows,
+    is_bulk,
     repairs_text,
 )
 
@@ -140,11 +141,12 @@ def _check_finite(name: str, a: F64) -> None:
 
 
 def _check_bulk(name: str, a: F64, limit: float, expected: str, hint: str = "") -> None:
-    """A unit check on the bulk of the data: FlightError when more than SPIKE_SHARE of the
-    finite rows of ``a`` have a component beyond ``limit`` (fewer are spikes, left to the
-    edge's repair)."""
+    """A unit check on the bulk of the data: FlightError when the rows of ``a`` with a
+    component beyond ``limit`` are its bulk (:func:`~windahrs.repair.is_bulk`: more than
+    SPIKE_SHARE of the finite rows and more than one; fewer are spikes, left to the edge's
+    repair)."""
     over, share = beyond_range(a, limit)
-    if share > SPIKE_SHARE:
+    if is_bulk(over, share):
         peak = float(np.nanmax(np.abs(a[over])))
         raise FlightError(
             name,

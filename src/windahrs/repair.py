@@ -18,14 +18,15 @@ kind               what is done
                    NaN is missing) and is counted as missing, not here
 ``out_of_range``   a row with a component beyond the sensor's range (:data:`GYRO_RANGE`,
                    :data:`ACCEL_RANGE`, ...) cannot have been measured: it becomes NaN, a
-                   missing sample, unless more than :data:`SPIKE_SHARE` of the finite rows
-                   are beyond, which is a unit slip (deg/s for rad/s), left for the
-                   stream's validation to refuse with its hint
+                   missing sample, unless they are the bulk of the data
+                   (:func:`is_bulk`: more than :data:`SPIKE_SHARE` of the finite rows, and
+                   more than one row), which is a unit slip (deg/s for rad/s), left for
+                   the stream's validation to refuse with its hint
 =================  ========================================================================
 
 The Flight's own constructors repair nothing: they refuse unsorted or repeated time stamps
 and infinite values, and check units on the bulk of the data (the same
-:data:`SPIKE_SHARE` rule), so a record is never changed behind its author's back; a
+:func:`is_bulk` rule), so a record is never changed behind its author's back; a
 simulated fault (a spike of any size) reaches the estimators as made. Repair is the edge's
 job: every reader, and ``Flight.from_arrays`` unless ``strict=True``.
 
@@ -58,6 +59,7 @@ __all__ = [
     "beyond_range",
     "clean_series",
     "finite_rows",
+    "is_bulk",
     "repairs_text",
 ]
 
@@ -165,6 +167,14 @@ def beyond_range(a: NDArray[Any], limit: float) -> tuple[NDArray[np.bool_], floa
     return over, (float(np.count_nonzero(over)) / finite if finite else 0.0)
 
 
+def is_bulk(over: NDArray[np.bool_], share: float) -> bool:
+    """Rows beyond the range (``over``, ``share`` of the finite rows, from
+    :func:`beyond_range`) are the bulk of the data, not spikes: more than
+    :data:`SPIKE_SHARE` of the rows and more than one row (one sample is never the bulk,
+    even in a short stream: 20 GNSS samples with one glitch)."""
+    return share > SPIKE_SHARE and int(np.count_nonzero(over)) > 1
+
+
 class RepairLog:
     """Counts of repairs per stream and kind, as a reader builds a Flight.
 
@@ -195,15 +205,15 @@ class RepairLog:
     def rows(self, stream: str, a: NDArray[Any], limit: float | None = None) -> F64:
         """``a`` ((N,) or (N, k)) as floats, its rows with a non-finite value NaN (those with
         an inf counted ``infinite``) and, given the sensor's ``limit``, its rows beyond it NaN (counted
-        ``out_of_range``) unless they are more than :data:`SPIKE_SHARE` of the finite rows
-        (a unit slip: left as they are for the stream's validation to refuse)."""
+        ``out_of_range``) unless they are the bulk of the data (:func:`is_bulk`: a unit
+        slip, left as they are for the stream's validation to refuse)."""
         out = np.array(a, dtype=np.float64)
         x = out if out.ndim == 2 else out.reshape(len(out), 1)  # a view: edits reach out
         self.add(stream, "infinite", int(np.count_nonzero(np.isinf(x).any(axis=1))))
         x[~np.isfinite(x).all(axis=1)] = np.nan
         if limit is not None:
             over, share = beyond_range(x, limit)
-            if share <= SPIKE_SHARE:
+            if not is_bulk(over, share):
                 x[over] = np.nan
                 self.add(stream, "out_of_range", int(np.count_nonzero(over)))
         return out
