@@ -7,8 +7,8 @@ missing topic, bad manifest entry); malformed *values* that reach the Flight rai
 :class:`~windahrs.flight.FlightError` with the file prefixed to the field. Both name
 the file.
 
-The repair of the samples themselves (time stamps out of order or repeated, non-finite
-values, samples beyond the sensor's range) is :mod:`windahrs.repair`, shared with
+The repair of the samples themselves (time stamps out of order, repeated or not finite,
+infinite values, samples beyond the sensor's range) is :mod:`windahrs.repair`, shared with
 ``Flight.from_arrays``: each reader fills a :class:`~windahrs.repair.RepairLog` and gives its
 counts to ``Flight.repairs``. The helpers below hold the rest of the policy every reader
 applies at the edge, so that nothing is dropped silently:
@@ -19,7 +19,7 @@ applies at the edge, so that nothing is dropped silently:
   (``meta["<format>.parser_messages"]``), not shown;
 * a truncated file (its last message or row incomplete) is read up to its last complete
   one, with a :class:`TruncatedLogWarning` saying how much was dropped, and the count in
-  ``meta["<format>.truncated_bytes"]`` (or ``"<file>.truncated_rows"`` for CSV).
+  ``meta["<format>.truncated_bytes"]`` (CSV: ``meta["<stream>.dropped_truncated_row"]``).
 """
 
 from __future__ import annotations
