@@ -475,7 +475,7 @@ class Flight:
         """A Flight from raw IMU arrays, as they come from a logger or ``vqf``'s
         ``VQF(Ts).updateBatch(gyr, acc, mag)``.
 
-        t: (N,) s, strictly increasing; or give ``rate`` (Hz) instead for samples
+        t: (N,) s, increasing (see Repair below); or give ``rate`` (Hz) instead for samples
         ``k / rate``. gyro: (N, 3) body rate; accel: (N, 3) specific force (a resting
         sensor reads +g upward); mag: (N, 3) magnetic field on the same time grid, or
         None. Rows with NaN are missing samples. Units (keyword-only): ``gyro_units``
