@@ -15,6 +15,7 @@ from windahrs.estimate import Estimate, load_estimate, save_estimate
 from windahrs.flags import FLAGS, flag_names, flag_spans
 from windahrs.flight import Flight, ImuStream
 from windahrs.metrics import attitude_errors, nees_attitude
+from windahrs.repair import GYRO_RANGE
 from windahrs.rotation import quat_conj, quat_mul
 from windahrs.sim import faults as F
 
@@ -61,7 +62,7 @@ def test_a_single_gyro_spike_is_held_and_costs_nothing(fixedwing: Flight, spec: 
     assert abs(_total_deg(est, faulty) / _total_deg(clean, fixedwing) - 1.0) < 0.01
     held = est.alerts["imu"]
     assert held.shape == (1, 4) and held[0, 0] == fixedwing.imu.t[k]
-    assert held[0, 3] == (1 if size > np.radians(2000.0) else 2)  # beyond the range, or a spike
+    assert held[0, 3] == (1 if size > GYRO_RANGE else 2)  # beyond the range, or a spike
     assert est.flags is not None and est.flags[k] & _bit("imu_held")
     assert any("IMU samples not propagated" in line for line in est.warnings())
     if size >= 20 and spec == "ins-wind":  # without the screen the same spike turns the attitude

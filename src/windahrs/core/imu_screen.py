@@ -8,10 +8,10 @@ Every IMU sample (finite: NaN ones are skipped before) therefore passes this scr
 the prediction. It is held, and the last propagated sample is propagated in its place, when:
 
 1. **beyond range:** a gyro axis above ``gyro_range`` or an accelerometer axis above
-   ``accel_range``. The sensor cannot output that (defaults: 2000 deg/s and 32 g, the
-   widest full scales of the MEMS IMUs autopilots carry: MPU-6000/9250, ICM-20602/42688,
-   BMI088 +-2000 deg/s; ICM-20649 on the Cube +-30 g, ICM-45686 +-32 g). A sample *at* its
-   range (a clipped one) is not beyond it and passes.
+   ``accel_range``. The sensor cannot output that (defaults: the ranges of the readers' edge
+   repair, :mod:`windahrs.repair`, which sets such samples to NaN in a log: the widest full
+   scales of autopilot IMUs plus 10 %; the screen catches them in flights built otherwise).
+   A sample *at* its range (a clipped one) is not beyond it and passes.
 2. **a spike:** the change of the angular rate or of the specific force since the last
    propagated sample exceeds ``imu_spike_gate`` times the root mean square of the recent
    changes (:data:`TAU_CHANGES` s), or :data:`FLOOR_W` / :data:`FLOOR_F`, whichever is

@@ -39,6 +39,7 @@ from windahrs.experiments.align import (  # the alignment's text lives beside it
 )
 from windahrs.flight import Flight
 from windahrs.metrics import Score, attitude_errors, chi2_band, reference_of, score
+from windahrs.repair import repairs_text
 from windahrs.report.figures import timeseries_png
 from windahrs.report.html import Cell, Image, Section, Table, format_cell, render_html
 from windahrs.rotation import euler_from_quat
@@ -259,6 +260,9 @@ def _overview(
         warning = alignment_warning(alignment)
         if warning:
             paras.append(f"Warning: {warning}.")
+    repaired = repairs_text(flight.repairs)
+    if repaired:
+        paras.append(f"Input repaired at the edge (windahrs.repair), so each estimator saw it repaired: {repaired}.")
     paras += list(notes)
     rows: list[list[Cell]] = []
     highlight: dict[tuple[int, int], Literal["good", "bad"]] = {}
