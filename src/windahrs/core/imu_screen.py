@@ -22,8 +22,12 @@ the prediction. It is held, and the last propagated sample is propagated in its 
    impact's ringing), propagated one sample late rather than lost: its step's excess
    rotation (and, for the INS, velocity increment) is added to the state then.
 
-The recent changes' mean square is taken over propagated samples, each change counted at
-most at the gate (a spike does not open the gate for the next one). Steps longer than
+A dropped sample may still have been motion: what it would have turned the attitude (and
+moved the INS velocity) by is added to their spread as a held sample's is
+(:func:`windahrs.core.predict.add_unmeasured_motion`), so that a wrong verdict costs a
+correction by the aiding, not a lasting error. The recent changes' mean square is taken over
+every sample, each change counted at most at the gate (a spike does not open the gate for the
+next one; vibration that sets in opens it by a third per sample). Steps longer than
 :data:`GAP` s are not screened: the motion between such samples was not measured. Every
 held sample is logged (the ``imu`` log: the two changes and the outcome: 1 beyond range,
 2 a spike, 3 motion propagated late), which the Estimate carries in ``alerts["imu"]``.
@@ -54,7 +58,9 @@ from windahrs.core.layout import (
     S_NHELD,
     W_IMU,
     W_NU,
+    X_DF,
     X_DTPEND,
+    X_DW,
     X_FLAST,
     X_PEND,
     X_Q,
@@ -64,6 +70,7 @@ from windahrs.core.layout import (
     X_V,
     X_WLAST,
 )
+from windahrs.core.predict import add_unmeasured_motion
 from windahrs.core.quat import _dcm9, _qexp, _qmul, _qnormalize
 
 __all__ = ["FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
@@ -131,7 +138,7 @@ def _change2(row, x, i_row, i_x):
 
 
 @njit(**_JIT)
-def screen_imu(cfg, prm, x, flags, inn, acc, work, t, row):
+def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
     """The IMU sample to propagate at t s in place of ``row`` = [w_b, f_b] (finite): ``row``
     itself, or with the last propagated angular rate or specific force in place of a held
     one (module docstring)."""
@@ -150,6 +157,14 @@ def screen_imu(cfg, prm, x, flags, inn, acc, work, t, row):
             _catch_up(cfg, x, flags, x[X_DTPEND], cw, cf)
             inn[cfg[C_OFF + INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
             dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
+        dropw, dropf = flags[S_NHELD] & 1 != 0 and not cw, flags[S_NHELD] & 2 != 0 and not cf
+        if (dropw or dropf) and flags[S_INIT] == 1:
+            # a dropped sample may still have been motion: what it would have moved the
+            # state by becomes spread (X_DW, X_DF are the kernel's to overwrite at this sample)
+            for a in range(3):
+                x[X_DW + a] = x[X_PEND + a] if dropw else 0.0
+                x[X_DF + a] = x[X_PEND + 3 + a] if dropf else 0.0
+            add_unmeasured_motion(cfg, x, P, work, x[X_DTPEND])
     gr, ar = prm[R_GYRO_RANGE], prm[R_ACC_RANGE]
     beyond_w, beyond_f = False, False
     for a in range(3):
