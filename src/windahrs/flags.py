@@ -27,12 +27,12 @@ magnetic field whose norm is off the reference's by more than :data:`MAG_NORM_SH
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from windahrs.core.imu_screen import CLIP_F, CLIP_W
 from windahrs.core.layout import SENSOR_STREAMS, SENSORS
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
@@ -75,8 +75,8 @@ STUCK_SAMPLES = 5
 #: full scales autopilot IMUs are set to (125 deg/s on the BMI088, 250 on the MPU-6000/9250;
 #: 2 g), below which a slow, quantised axis may repeat itself (BROAD's does at 0.05 rad/s).
 CLIP_SAMPLES = 3
-CLIP_MIN_W = 125.0 * math.pi / 180.0
-CLIP_MIN_F = 2.0 * 9.80665
+CLIP_MIN_W = CLIP_W
+CLIP_MIN_F = CLIP_F
 #: The magnetometer's field is disturbed when its norm is off the reference's by more than
 #: this share (the site's field, else the flight's median norm): VQF's magNormTh, 0.1.
 MAG_NORM_SHARE = 0.1
