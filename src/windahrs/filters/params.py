@@ -141,8 +141,8 @@ class EskfParams:
     filter out for good, and an EKF update cannot turn a filter that is upside down
     (default 5 s, PX4 EKF2_NOAID_TOUT, the longest EKF2 dead-reckons before it resets to
     its aiding; 0: never). GNSS velocity kept out as long resets the INS to it
-    (:mod:`windahrs.aid.gnss_vel`: velocity, attitude spread, biases, wind; the magnetometer
-    is then no longer fused, as PX4 EKF2 declares it faulty after its GNSS emergency reset).
+    (:mod:`windahrs.aid.gnss_vel`: velocity, attitude spread, biases, wind; the heading then
+    turns to the next magnetometer sample).
 
     Held samples. unmeasured_motion_dt s: an IMU step longer than this is taken to hold a
     point sample over motion it did not measure, and adds the noise of that to the
