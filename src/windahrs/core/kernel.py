@@ -12,7 +12,8 @@ Nothing is allocated inside the loop.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Literal
+from collections.abc import Sequence
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -781,6 +782,27 @@ class CompiledStreamer(EventStreamer):
         )
 
 
+class PreparedRun(NamedTuple):
+    """One flight made ready for :func:`run_events`: the flight, its parameters (the
+    estimator's with what the flight declares), the error-state layout, a fresh
+    KernelState, the merged events (t_ev (E,), kinds (E,), vals (E, 6)) and the outputs it
+    records into: q (N, 4), bg (N, 3), v and w (N, 3), or (0, 3) when not in the layout,
+    cov (N, d, d)."""
+
+    flight: Flight
+    params: EskfParams
+    layout: Layout
+    st: KernelState
+    t_ev: F64
+    kinds: I64
+    vals: F64
+    q: F64
+    bg: F64
+    v: F64
+    w: F64
+    cov: F64
+
+
 class CompiledEstimator(Estimator):
     """An estimator on the compiled core: a process model (``kind``; ``additive`` for the
     quaternion-additive form) and the aid sources its parameters switch on. ``run`` is one
@@ -804,6 +826,28 @@ class CompiledEstimator(Estimator):
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
         """Estimate the whole flight in one compiled loop (with the parameters the flight
         itself declares, :func:`~windahrs.filters.params.flight_params`)."""
+        run = self.prepare(flight, initial)
+        run_events(run.st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True)
+        return self.finish(run)
+
+    def run_batch(
+        self,
+        flights: Sequence[Flight],
+        *,
+        initial: Sequence[InitialState | None] | None = None,
+        threads: int | None = None,
+    ) -> list[Estimate]:
+        """Estimate several flights in one compiled call, the runs advancing in parallel
+        (:func:`windahrs.core.batch.run_batch`): the same Estimates as ``[self.run(f) for
+        f in flights]``. initial: one InitialState (or None) per flight; threads: how many
+        runs at once (default: numba's thread count, ``NUMBA_NUM_THREADS``)."""
+        from windahrs.core.batch import run_batch
+
+        return run_batch(self, flights, initial=initial, threads=threads)
+
+    def prepare(self, flight: Flight, initial: InitialState | None = None) -> PreparedRun:
+        """What :func:`run_events` needs to run ``flight``: a fresh state, the merged events
+        and the outputs (uninitialised), in a :class:`PreparedRun`."""
         self.check(flight)
         params = flight_params(self.params, flight.meta, self.param_names())
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
@@ -817,20 +861,25 @@ class CompiledEstimator(Estimator):
         v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
         w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
         cov = np.empty((N, d, d))
-        run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
+        return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov)
+
+    def finish(self, run: PreparedRun) -> Estimate:
+        """The Estimate of a run that :func:`run_events` has been through (checked:
+        :func:`~windahrs.filters.checks.checked`)."""
+        st, L, flight = run.st, run.layout, run.flight
         skipped = st.flags[K_SKIP : K_SKIP + 4]
         return checked(Estimate(
             filter=self.label,
             t=flight.imu.t.copy(),
-            q_nb=q,
-            gyro_bias_b=bg,
-            v_n=v if L.has("v") else None,
-            wind_n=w if L.has("wind") else None,
-            cov=cov,
+            q_nb=run.q,
+            gyro_bias_b=run.bg,
+            v_n=run.v if L.has("v") else None,
+            wind_n=run.w if L.has("wind") else None,
+            cov=run.cov,
             state_labels=L.labels(),
-            innovations=_innovations(st, effective_mag_mode(params, flight.site)),
+            innovations=_innovations(st, effective_mag_mode(run.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
-            params=repr(params),
+            params=repr(run.params),
             resets=_resets(st),
         ), flight)
 

@@ -1,0 +1,185 @@
+"""Batched runs: several flights through one compiled estimator in one compiled call, the
+runs advancing in parallel on numba's threads (a ``prange`` over the runs around the one
+event loop, :func:`windahrs.core.kernel.run_events`). There is no second copy of any filter
+maths: each run is the single-flight loop on its own state, so a batched run gives the
+Estimate that :meth:`~windahrs.core.kernel.CompiledEstimator.run` gives, bit for bit
+(tests/test_batch.py).
+
+Flights of different lengths are packed end to end, not padded: the events, the outputs,
+the covariances, the innovation logs and the scratch space of all runs sit in one buffer
+each, and run ``r`` works on its own slice, ``[off[r], off[r + 1])``. Each Estimate's
+arrays are views of these buffers (a run's Estimate keeps the buffers alive: the memory is
+that of the Estimates of the runs done one by one). The runs start longest first and are
+handed to the threads one at a time, so a long flight does not leave a thread idle at the
+end.
+
+Threads: ``threads`` runs at once (default: numba's current thread count, which is
+``NUMBA_NUM_THREADS``, by default the number of cores, unless ``numba.set_num_threads``
+changed it); the count is restored after the call. The function releases the GIL. The
+runs share no mutable data (each has its own state, scratch and output slices; the
+events are read only), so the parallel loop is safe. numba's OpenMP and TBB threading
+layers accept calls from several Python threads at once (e.g. a Dask worker with several
+threads); its fallback layer, workqueue, does not (numba aborts): there, give each worker
+one thread. GNU OpenMP is not fork-safe: start worker processes with ``spawn`` (Dask's
+default) once a batch has run in the parent.
+
+The compiled loop is cached beside the sources like the rest of the core (``cache=True``;
+numba caches parallel functions too).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
+from windahrs.core.layout import _JIT, I64, KernelState
+from windahrs.estimate import Estimate
+from windahrs.filters.base import InitialState
+from windahrs.flight import Flight
+
+__all__ = ["run_batch"]
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _run_packed(
+    cfg, prm, x, flags, sup,
+    P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
+    t_ev, kinds, vals, e_off,
+    q, bg, v, w, n_off, cov, c_off, dims,
+    order,
+):  # fmt: skip
+    """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
+    cfg, prm, x, flags (R, ...) and sup (R, 2, NMAX): the runs' fixed-size state records;
+    P, work (flat): run r's covariance (p_n[r], p_n[r]) at p_off[r], its scratch (rows,
+    w_cols[r]) at w_off[r]; inn (L, 5), acc (L,): its logs in rows l_off[r]:l_off[r + 1];
+    t_ev, kinds, vals: its events in e_off[r]:e_off[r + 1]; q, bg, v, w: its outputs in
+    rows n_off[r]:n_off[r + 1] (v, w: (0, 3) when not in the layout); cov (flat): its
+    (N, dims[r], dims[r]) covariances at c_off[r]."""
+    for i in prange(order.shape[0]):
+        r = order[i]
+        n0, n1, e0, e1 = n_off[r], n_off[r + 1], e_off[r], e_off[r + 1]
+        m, d = p_n[r], dims[r]
+        rows = (w_off[r + 1] - w_off[r]) // w_cols[r]
+        st = KernelState(
+            cfg[r],
+            prm[r],
+            x[r],
+            flags[r],
+            P[p_off[r] : p_off[r] + m * m].reshape((m, m)),
+            work[w_off[r] : w_off[r + 1]].reshape((rows, w_cols[r])),
+            sup[r],
+            inn[l_off[r] : l_off[r + 1]],
+            acc[l_off[r] : l_off[r + 1]],
+        )
+        out_cov = cov[c_off[r] : c_off[r] + (n1 - n0) * d * d].reshape((n1 - n0, d, d))
+        run_events(
+            st, t_ev[e0:e1], kinds[e0:e1], vals[e0:e1],
+            q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, True,
+        )  # fmt: skip
+
+
+def _offsets(sizes: Sequence[int]) -> I64:
+    return np.concatenate([[0], np.cumsum(np.asarray(sizes, dtype=np.int64))]).astype(np.int64)
+
+
+def _threads(threads: int | None) -> int:
+    top = int(numba.config.NUMBA_NUM_THREADS)
+    if threads is None:
+        return int(numba.get_num_threads())
+    if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or not 1 <= threads <= top:
+        raise ValueError(f"threads: expected an integer from 1 to {top} (NUMBA_NUM_THREADS), found {threads!r}")
+    return int(threads)
+
+
+def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun]]:
+    """The runs' arrays packed end to end (the arguments of :func:`_run_packed`, without
+    ``order``), and the runs with their states and outputs replaced by views of them."""
+    sts = [r.st for r in runs]
+    cfg, prm, x, flags, sup = (np.stack([getattr(s, f) for s in sts]) for f in ("cfg", "prm", "x", "flags", "sup"))
+    p_n = np.array([s.P.shape[0] for s in sts], dtype=np.int64)
+    p_off = _offsets([s.P.size for s in sts])
+    P = np.concatenate([s.P.ravel() for s in sts])
+    w_cols = np.array([s.work.shape[1] for s in sts], dtype=np.int64)
+    w_off = _offsets([s.work.size for s in sts])
+    work = np.concatenate([s.work.ravel() for s in sts])
+    l_off = _offsets([len(s.inn) for s in sts])
+    inn = np.concatenate([s.inn for s in sts])
+    acc = np.concatenate([s.acc for s in sts])
+    e_off = _offsets([len(r.t_ev) for r in runs])
+    t_ev = np.concatenate([r.t_ev for r in runs])
+    kinds = np.concatenate([r.kinds for r in runs])
+    vals = np.concatenate([r.vals for r in runs])
+    n_off = _offsets([len(r.q) for r in runs])
+    N = int(n_off[-1])
+    q, bg = np.empty((N, 4)), np.empty((N, 3))
+    v = np.empty((N if len(runs[0].v) else 0, 3))
+    w = np.empty((N if len(runs[0].w) else 0, 3))
+    dims = np.array([r.cov.shape[1] for r in runs], dtype=np.int64)
+    c_off = _offsets([r.cov.size for r in runs])
+    cov = np.empty(int(c_off[-1]))
+    views = []
+    for i, r in enumerate(runs):
+        n0, n1 = int(n_off[i]), int(n_off[i + 1])
+        l0, l1 = int(l_off[i]), int(l_off[i + 1])
+        st = KernelState(
+            cfg=cfg[i],
+            prm=prm[i],
+            x=x[i],
+            flags=flags[i],
+            P=P[p_off[i] : p_off[i + 1]].reshape(r.st.P.shape),
+            work=work[w_off[i] : w_off[i + 1]].reshape(r.st.work.shape),
+            sup=sup[i],
+            inn=inn[l0:l1],
+            acc=acc[l0:l1],
+        )
+        views.append(r._replace(
+            st=st,
+            q=q[n0:n1],
+            bg=bg[n0:n1],
+            v=v[n0:n1],
+            w=w[n0:n1],
+            cov=cov[c_off[i] : c_off[i + 1]].reshape(r.cov.shape),
+        ))  # fmt: skip
+    args = (cfg, prm, x, flags, sup, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
+            t_ev, kinds, vals, e_off, q, bg, v, w, n_off, cov, c_off, dims)  # fmt: skip
+    return args, views
+
+
+def run_batch(
+    est: CompiledEstimator,
+    flights: Sequence[Flight],
+    *,
+    initial: Sequence[InitialState | None] | None = None,
+    threads: int | None = None,
+) -> list[Estimate]:
+    """The Estimates of ``est`` on ``flights`` (in their order), the runs advancing together
+    in one compiled call on ``threads`` threads: the same Estimates as ``[est.run(f,
+    initial=i) for f, i in zip(flights, initial)]``. Flights may differ in length and in
+    sensors. initial: one InitialState or None per flight (default: None for all);
+    threads: runs at once, 1 to NUMBA_NUM_THREADS (default: numba's current count).
+
+    The preparation (merging each flight's events, encoding its state) and the Estimates'
+    checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
+    other; only the filters run in parallel."""
+    flights = list(flights)
+    inits = [None] * len(flights) if initial is None else list(initial)
+    if len(inits) != len(flights):
+        raise ValueError(f"initial: expected one entry per flight ({len(flights)}), found {len(inits)}")
+    n_threads = _threads(threads)
+    if not flights:
+        return []
+    runs = [est.prepare(f, i) for f, i in zip(flights, inits, strict=True)]
+    args, runs = _pack(runs)
+    order = np.argsort([-len(r.t_ev) for r in runs], kind="stable").astype(np.int64)
+    before = numba.get_num_threads()
+    numba.set_num_threads(n_threads)
+    try:
+        with numba.parallel_chunksize(1):
+            _run_packed(*args, order)
+    finally:
+        numba.set_num_threads(before)
+    return [est.finish(r) for r in runs]
