@@ -38,7 +38,7 @@ from numba import njit, prange
 from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
 from windahrs.core.layout import _JIT, I64, KernelState
 from windahrs.estimate import Estimate
-from windahrs.filters.base import InitialState
+from windahrs.filters.base import InitialState, initial_per_flight
 from windahrs.flight import Flight
 
 __all__ = ["run_batch"]
@@ -87,7 +87,7 @@ def _offsets(sizes: Sequence[int]) -> I64:
 
 
 def _threads(threads: int | None) -> int:
-    top = int(numba.config.NUMBA_NUM_THREADS)
+    top = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
     if threads is None:
         return int(numba.get_num_threads())
     if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or not 1 <= threads <= top:
@@ -166,9 +166,7 @@ def run_batch(
     checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
     other; only the filters run in parallel."""
     flights = list(flights)
-    inits = [None] * len(flights) if initial is None else list(initial)
-    if len(inits) != len(flights):
-        raise ValueError(f"initial: expected one entry per flight ({len(flights)}), found {len(inits)}")
+    inits = initial_per_flight(initial, len(flights))
     n_threads = _threads(threads)
     if not flights:
         return []

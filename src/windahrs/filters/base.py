@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import copy
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -378,6 +378,23 @@ class Estimator(ABC):
             raise ValueError(f"has: expected stream names from {known}, found {unknown}")
         return self.streamer(site if site is not None else Site(), initial=initial, has=streams & self.uses)
 
+    def run_batch(
+        self,
+        flights: Sequence[Flight],
+        *,
+        initial: Sequence[InitialState | None] | None = None,
+        threads: int | None = None,
+    ) -> list[Estimate]:
+        """The Estimates of several flights, as ``[self.run(f, initial=i) for f, i in
+        zip(flights, initial)]``. initial: one InitialState (or None) per flight (default
+        None for all). The estimators on the compiled core (``mekf``, ``mekf-air``,
+        ``ins-wind``, ``ins-drag``, ``ekf7``, ``ekf10``) run the flights together on
+        ``threads`` threads (:mod:`windahrs.core.batch`); the others run them one after the
+        other and ignore ``threads``."""
+        flights = list(flights)
+        inits = initial_per_flight(initial, len(flights))
+        return [self.run(f, initial=i) for f, i in zip(flights, inits, strict=True)]
+
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
         """Estimate the whole flight (replays it through :meth:`streamer`)."""
         self.check(flight)
@@ -387,6 +404,15 @@ class Estimator(ABC):
         t_ev, kinds, vals = merge_events(flight, has)
         s = self.streamer(flight.site, initial=initial, has=has)
         return replay(self, s, flight, t_ev, kinds, vals)
+
+
+def initial_per_flight(initial: Sequence[InitialState | None] | None, n: int) -> list[InitialState | None]:
+    """``run_batch``'s ``initial`` as a list of n entries (None: n times None); ValueError
+    when it does not hold one entry per flight."""
+    inits: list[InitialState | None] = [None] * n if initial is None else list(initial)
+    if len(inits) != n:
+        raise ValueError(f"initial: expected one entry per flight ({n}), found {len(inits)}")
+    return inits
 
 
 def replay(
