@@ -321,7 +321,10 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
     for p in parts:
         vals[row : row + len(p[0]), : p[2].shape[1]] = p[2]
         row += len(p[0])
-    order = np.lexsort((kinds, t))
+    # by time, and at equal times in the kinds' order: the parts are concatenated in that
+    # order (EVENT_IMU first) and the sort is stable (each part nearly sorted already: the
+    # stable sort merges the runs, several times faster than a lexsort on (kinds, t))
+    order = np.argsort(t, kind="stable")
     return t[order], kinds[order], vals[order]
 
 
