@@ -116,3 +116,24 @@ def test_estimators_without_a_batched_core_run_one_by_one() -> None:
     est = make_estimator("ekf")
     for fl, b in zip(flights, est.run_batch(flights), strict=True):
         np.testing.assert_array_equal(b.q_nb, est.run(fl).q_nb)
+
+
+@pytest.mark.parametrize("spec", ["mekf", "ins-wind", "ekf7", "ekf"])
+def test_the_attitude_covariance_alone_is_the_full_ones_block(spec: str) -> None:
+    flights = _flights("fixedwing")[:2]
+    est = make_estimator(spec)
+    full = est.run_batch(flights)
+    att = est.run_batch(flights, cov="attitude")
+    none = est.run_batch(flights, cov="none")
+    for f, a, n in zip(full, att, none, strict=True):
+        block = f.att_cov()
+        assert block is not None and a.cov is not None
+        assert a.state_labels == tuple(lab for lab in f.state_labels if lab.startswith("att_"))
+        assert len(a.state_labels) == 3
+        np.testing.assert_array_equal(a.cov, block)
+        assert n.cov is None and n.state_labels == ()
+        for e in (a, n):
+            np.testing.assert_array_equal(e.q_nb, f.q_nb)
+            np.testing.assert_array_equal(e.gyro_bias_b, f.gyro_bias_b)
+    with pytest.raises(ValueError, match="cov: expected one of 'full', 'attitude', 'none', found 'att'"):
+        est.run_batch(flights, cov="att")  # type: ignore[arg-type]

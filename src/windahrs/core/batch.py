@@ -38,7 +38,7 @@ from numba import njit, prange
 from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
 from windahrs.core.layout import _JIT, I64, KernelState
 from windahrs.estimate import Estimate
-from windahrs.filters.base import InitialState, initial_per_flight
+from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
 from windahrs.flight import Flight
 
 __all__ = ["run_batch"]
@@ -155,12 +155,15 @@ def run_batch(
     *,
     initial: Sequence[InitialState | None] | None = None,
     threads: int | None = None,
+    cov: CovRecord = "full",
 ) -> list[Estimate]:
     """The Estimates of ``est`` on ``flights`` (in their order), the runs advancing together
     in one compiled call on ``threads`` threads: the same Estimates as ``[est.run(f,
     initial=i) for f, i in zip(flights, initial)]``. Flights may differ in length and in
     sensors. initial: one InitialState or None per flight (default: None for all);
-    threads: runs at once, 1 to NUMBA_NUM_THREADS (default: numba's current count).
+    threads: runs at once, 1 to NUMBA_NUM_THREADS (default: numba's current count); cov:
+    the covariance recorded, "full" (as ``run``), "attitude" (the 3 x 3 attitude block, with
+    its labels) or "none" (:data:`~windahrs.filters.base.CovRecord`).
 
     The preparation (merging each flight's events, encoding its state) and the Estimates'
     checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
@@ -168,9 +171,11 @@ def run_batch(
     flights = list(flights)
     inits = initial_per_flight(initial, len(flights))
     n_threads = _threads(threads)
+    if cov not in COV_RECORDS:
+        raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
     if not flights:
         return []
-    runs = [est.prepare(f, i) for f, i in zip(flights, inits, strict=True)]
+    runs = [est.prepare(f, i, cov) for f, i in zip(flights, inits, strict=True)]
     args, runs = _pack(runs)
     order = np.argsort([-len(r.t_ev) for r in runs], kind="stable").astype(np.int64)
     before = numba.get_num_threads()

@@ -191,10 +191,12 @@ from windahrs.core.quat import (
 from windahrs.core.reset import set_attitude_cov
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
+    COV_RECORDS,
     EVENT_AIR,
     EVENT_GNSS,
     EVENT_IMU,
     EVENT_MAG,
+    CovRecord,
     Estimator,
     EventStreamer,
     InitialState,
@@ -429,8 +431,9 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
 def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
-    covariance (N, d, d) (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I))."""
-    d = cfg[C_DIM]
+    covariance (N, d, d) (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I)), its leading d x d
+    block for d = out_cov.shape[1]: the whole (cfg[C_DIM]), the attitude's (3) or none (0)."""
+    d = out_cov.shape[1]
     iv, iw = cfg[C_IV], cfg[C_IW]
     if flags[S_INIT] == 0:
         q = (1.0, 0.0, 0.0, 0.0)
@@ -474,10 +477,13 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
 
 @njit(**_JIT)
 def _record_tangent_cov(cfg, x, P, work, k, out_cov):
-    """The additive filters' tangent-space covariance into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)."""
+    """The additive filters' tangent-space covariance into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)
+    (the attitude's block alone when out_cov is (N, 3, 3), nothing when (N, 0, 0))."""
+    if out_cov.shape[1] == 0:
+        return
     Xi = work[W_M + 4 : W_M + 8]
     _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
-    n = cfg[C_N]
+    n = cfg[C_N] if out_cov.shape[1] > 3 else 4
     for r in range(3):
         for j in range(4, n):
             v = (
@@ -787,7 +793,7 @@ class PreparedRun(NamedTuple):
     estimator's with what the flight declares), the error-state layout, a fresh
     KernelState, the merged events (t_ev (E,), kinds (E,), vals (E, 6)) and the outputs it
     records into: q (N, 4), bg (N, 3), v and w (N, 3), or (0, 3) when not in the layout,
-    cov (N, d, d)."""
+    cov (N, d, d), d the layout's dimension, 3 (the attitude's block) or 0 (none)."""
 
     flight: Flight
     params: EskfParams
@@ -836,18 +842,23 @@ class CompiledEstimator(Estimator):
         *,
         initial: Sequence[InitialState | None] | None = None,
         threads: int | None = None,
+        cov: CovRecord = "full",
     ) -> list[Estimate]:
         """Estimate several flights in one compiled call, the runs advancing in parallel
         (:func:`windahrs.core.batch.run_batch`): the same Estimates as ``[self.run(f) for
         f in flights]``. initial: one InitialState (or None) per flight; threads: how many
-        runs at once (default: numba's thread count, ``NUMBA_NUM_THREADS``)."""
+        runs at once (default: numba's thread count, ``NUMBA_NUM_THREADS``); cov: the
+        covariance recorded, "full", "attitude" or "none" (:data:`CovRecord`)."""
         from windahrs.core.batch import run_batch
 
-        return run_batch(self, flights, initial=initial, threads=threads)
+        return run_batch(self, flights, initial=initial, threads=threads, cov=cov)
 
-    def prepare(self, flight: Flight, initial: InitialState | None = None) -> PreparedRun:
+    def prepare(self, flight: Flight, initial: InitialState | None = None, cov: CovRecord = "full") -> PreparedRun:
         """What :func:`run_events` needs to run ``flight``: a fresh state, the merged events
-        and the outputs (uninitialised), in a :class:`PreparedRun`."""
+        and the outputs (uninitialised), in a :class:`PreparedRun`; cov: the covariance to
+        record (:data:`~windahrs.filters.base.CovRecord`)."""
+        if cov not in COV_RECORDS:
+            raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
         self.check(flight)
         params = flight_params(self.params, flight.meta, self.param_names())
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
@@ -856,12 +867,12 @@ class CompiledEstimator(Estimator):
         caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
         st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
         L = layout_for(self.kind, params, additive=self.additive)
-        N, d = len(flight.imu.t), L.dim
+        N, d = len(flight.imu.t), {"full": L.dim, "attitude": 3, "none": 0}[cov]
         q, bg = np.empty((N, 4)), np.empty((N, 3))
         v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
         w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
-        cov = np.empty((N, d, d))
-        return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov)
+        P = np.empty((N, d, d))
+        return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)
 
     def finish(self, run: PreparedRun) -> Estimate:
         """The Estimate of a run that :func:`run_events` has been through (checked:
@@ -875,8 +886,8 @@ class CompiledEstimator(Estimator):
             gyro_bias_b=run.bg,
             v_n=run.v if L.has("v") else None,
             wind_n=run.w if L.has("wind") else None,
-            cov=run.cov,
-            state_labels=L.labels(),
+            cov=run.cov if run.cov.shape[1] else None,
+            state_labels=L.labels()[: run.cov.shape[1]],
             innovations=_innovations(st, effective_mag_mode(run.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=repr(run.params),
