@@ -4,6 +4,7 @@ parallel call give the Estimates of the flights run one by one."""
 from __future__ import annotations
 
 import dataclasses
+import threading
 from functools import cache
 
 import numba
@@ -137,3 +138,26 @@ def test_the_attitude_covariance_alone_is_the_full_ones_block(spec: str) -> None
             np.testing.assert_array_equal(e.gyro_bias_b, f.gyro_bias_b)
     with pytest.raises(ValueError, match="cov: expected one of 'full', 'attitude', 'none', found 'att'"):
         est.run_batch(flights, cov="att")  # type: ignore[arg-type]
+
+
+def test_calls_from_several_python_threads_at_once() -> None:
+    """As from a Dask worker with several threads: each call gets its own runs' Estimates."""
+    flights = _flights("fixedwing")
+    est = make_estimator("mekf")
+    ref = [est.run(f).q_nb for f in flights]
+    got: dict[int, list[np.ndarray]] = {}
+
+    def work(i: int) -> None:
+        order = flights if i % 2 == 0 else flights[::-1]
+        out = [e.q_nb for e in est.run_batch(order, threads=min(2, numba.config.NUMBA_NUM_THREADS))]
+        got[i] = out if i % 2 == 0 else out[::-1]
+
+    pool = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in pool:
+        t.start()
+    for t in pool:
+        t.join()
+    assert sorted(got) == [0, 1, 2, 3]
+    for out in got.values():
+        for a, b in zip(out, ref, strict=True):
+            np.testing.assert_array_equal(a, b)

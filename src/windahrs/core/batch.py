@@ -8,8 +8,9 @@ Estimate that :meth:`~windahrs.core.kernel.CompiledEstimator.run` gives, bit for
 Flights of different lengths are packed end to end, not padded: the events, the outputs,
 the covariances, the innovation logs and the scratch space of all runs sit in one buffer
 each, and run ``r`` works on its own slice, ``[off[r], off[r + 1])``. Each Estimate's
-arrays are views of these buffers (a run's Estimate keeps the buffers alive: the memory is
-that of the Estimates of the runs done one by one). The runs start longest first and are
+arrays are views of these buffers: all the Estimates together take the memory of the runs
+done one by one, but one Estimate kept alone keeps the whole batch's buffers alive (copy
+what you keep, or keep the batch's results together). The runs start longest first and are
 handed to the threads one at a time, so a long flight does not leave a thread idle at the
 end.
 
@@ -19,9 +20,10 @@ changed it); the count is restored after the call. The function releases the GIL
 runs share no mutable data (each has its own state, scratch and output slices; the
 events are read only), so the parallel loop is safe. numba's OpenMP and TBB threading
 layers accept calls from several Python threads at once (e.g. a Dask worker with several
-threads); its fallback layer, workqueue, does not (numba aborts): there, give each worker
-one thread. GNU OpenMP is not fork-safe: start worker processes with ``spawn`` (Dask's
-default) once a batch has run in the parent.
+threads); its fallback layer, workqueue, does not (numba aborts the process), so there the
+calls take a lock and run one at a time (as does the first call, which chooses the layer).
+GNU OpenMP is not fork-safe: start worker processes with ``spawn`` (Dask's default) once a
+batch has run in the parent.
 
 The compiled loop is cached beside the sources like the rest of the core (``cache=True``;
 numba caches parallel functions too).
@@ -29,6 +31,8 @@ numba caches parallel functions too).
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from collections.abc import Sequence
 
 import numba
@@ -181,8 +185,23 @@ def run_batch(
     before = numba.get_num_threads()
     numba.set_num_threads(n_threads)
     try:
-        with numba.parallel_chunksize(1):
+        with numba.parallel_chunksize(1), _guard():
             _run_packed(*args, order)
     finally:
         numba.set_num_threads(before)
     return [est.finish(r) for r in runs]
+
+
+#: Serialises the parallel calls where numba's threading layer cannot take concurrent ones.
+_LAYER_LOCK = threading.Lock()
+
+
+def _guard() -> contextlib.AbstractContextManager[object]:
+    """A lock around the parallel call when numba's threading layer is workqueue (not
+    thread-safe: numba aborts the process on concurrent calls) or not chosen yet (the first
+    call chooses it); nothing for OpenMP and TBB."""
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel call yet
+        layer = None
+    return _LAYER_LOCK if layer in (None, "workqueue") else contextlib.nullcontext()
