@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
     from windahrs.flight import Flight
     from windahrs.metrics import Score
+    from windahrs.sim.faults import Fault
 
 __all__ = ["main"]
 
@@ -62,16 +63,112 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed: expected an integer >= 0, found {args.seed}")
     scenario = make_scenario(args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude)
+    faults = _faults(args.fault)
+    if args.csv and args.out.exists():
+        raise UsageError(f"--out: expected a directory that does not exist yet (--csv), found {args.out}")
     # Shown on a terminal only (tqdm's disable=None); stages, as the work is vectorised.
     with tqdm(total=2, desc=f"simulate {args.vehicle}", unit="stage", disable=None, file=sys.stderr) as bar:
         flight = simulate(scenario, np.random.default_rng(args.seed))
         flight = flight.replace(meta={**flight.meta, "seed": args.seed})
+        if faults or args.csv:
+            from windahrs.sim.faults import inject_raw
+
+            raw = inject_raw(flight, faults, seed=args.seed)
         bar.update(1)
         bar.set_description(f"write {args.out.name}")
-        save_flight(flight, args.out)
+        if args.csv:
+            raw.write_csv_dir(args.out)
+        else:
+            if faults:
+                flight = raw.to_flight()
+            save_flight(flight, args.out)
         bar.update(1)
     print(f"wrote {args.out}")
-    print(flight.summary())
+    if not args.csv:
+        print(flight.summary())
+    return 0
+
+
+def _faults(specs: list[str] | None) -> list[Fault]:
+    """The --fault specs as faults (FaultError, a ValueError, naming the field)."""
+    from windahrs.sim.faults import parse_fault
+
+    return [parse_fault(s) for s in specs or ()]
+
+
+def _out_dir(path: Path, option: str = "--out") -> None:
+    """Refuse an output directory that cannot be made or written, before any work."""
+    import os
+
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{option}: expected a directory, found the file {path}")
+    parent = path if path.is_dir() else path.parent
+    if not parent.is_dir():
+        raise UsageError(f"{option}: expected a directory in an existing one, found no directory {parent}")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"{option}: expected a writable directory, found {parent} not writable")
+
+
+def _cmd_faults(args: argparse.Namespace) -> int:
+    import json
+    import shutil
+
+    from windahrs.experiments.faults import check_cases, default_cases, matrix_markdown, run_fault_matrix
+    from windahrs.filters.registry import make_estimator
+    from windahrs.store import atomic_path
+
+    specs = _specs(args.filters)
+    for spec in specs:  # a bad name or field before any work
+        make_estimator(spec)
+    if args.seed < 0:
+        raise UsageError(f"--seed: expected an integer >= 0, found {args.seed}")
+    if not (np.isfinite(args.wind) and 0 <= args.wind <= 30):
+        raise UsageError(f"--wind: expected a W20 between 0 and 30 m/s, found {args.wind}")
+    if not (np.isfinite(args.duration) and 0 < args.duration <= 3600):
+        raise UsageError(f"--duration: expected between 0 and 3600 s, found {args.duration}")
+    cases = default_cases(args.duration / 3)
+    if args.faults is not None:
+        known = {c.name: c for c in cases}
+        wanted = _specs(args.faults)
+        unknown = [w for w in wanted if w not in known]
+        if unknown:
+            raise UsageError(f"--faults: expected names among {', '.join(known)}, found {', '.join(unknown)}")
+        cases = [known[w] for w in wanted]
+    try:
+        check_cases(cases, args.duration)
+    except ValueError as exc:
+        raise UsageError(f"--{exc}") from None
+    _out_dir(args.out)
+    with _runs_bar(len(specs) * (len(cases) + 1), f"faults {args.vehicle}") as bar:
+
+        def step(done: int, total: int, label: str) -> None:
+            bar.set_postfix_str(label, refresh=False)
+            bar.update(done - bar.n)
+
+        res = run_fault_matrix(args.vehicle, specs, wind=args.wind, duration=args.duration, seed=args.seed,
+                               cases=cases, progress=step)
+    made = not args.out.exists()
+    args.out.mkdir(exist_ok=True)
+    try:
+        rows = [r.as_dict() for r in res.rows]
+        with atomic_path(args.out / "faults.json") as tmp:
+            tmp.write_text(json.dumps(rows, indent=1) + "\n")
+        with atomic_path(args.out / "faults.md") as tmp:
+            tmp.write_text(matrix_markdown([res]))
+    except BaseException:
+        if made:
+            shutil.rmtree(args.out, ignore_errors=True)
+        raise
+    for note in res.not_run:
+        _note(f"not run: {note}")
+    n = len(res.rows)
+    flagged = sum(r.flagged for r in res.rows)
+    recovered = sum(r.recover_s is not None and r.recover_s <= 10.0 for r in res.rows)
+    nans = sum(r.nan_count > 0 for r in res.rows)
+    print(f"{n} runs: {flagged} flagged within 1 s, {recovered} back under twice the pre-fault RMS within 10 s, "
+          f"{nans} with NaN in the estimate")
+    print(f"wrote {args.out / 'faults.md'}")
+    print(f"wrote {args.out / 'faults.json'}")
     return 0
 
 
@@ -439,8 +536,41 @@ def _parser() -> argparse.ArgumentParser:
         help="seconds (default: 120; 10 for paper)",
     )
     s.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
+    s.add_argument("--fault", action="append", default=None, metavar="KIND:field=value:...",
+                   help="inject a sensor fault after the simulation (repeatable; the truth is untouched), e.g. "
+                   "gyro-spike:start=30:magnitude=40 or gnss-outage:start=20:duration=10; kinds and fields in "
+                   "docs/ROBUSTNESS.md. Faults whose stamps a Flight refuses (duplicate-stamps, out-of-order) are "
+                   "refused in an HDF5 flight file: write them with --csv")
+    s.add_argument("--csv", action="store_true",
+                   help="write --out as a generic-CSV directory (docs/csv-format.md, the truth as the reference) "
+                   "instead of HDF5, keeping what a Flight refuses (duplicated or out-of-order stamps, Inf) for the "
+                   "readers' edge repair")
     s.add_argument("--out", type=Path, required=True, metavar="FILE.h5", help="output file")
     s.set_defaults(func=_cmd_simulate)
+
+    ft = sub.add_parser(
+        "faults",
+        help="the fault matrix: sensor faults x estimators on a simulated flight, flags and recovery",
+        description="Simulate one seeded flight, inject each fault of the catalogue in turn (gyro and "
+        "accelerometer spikes, NaN samples, dropouts, stuck values, vibration, saturation, a magnet, a drifting "
+        "or absent or late magnetometer, pitot and vane failures, GNSS outage and jumps, jittered, duplicated and "
+        "out-of-order stamps) and run every estimator on the clean and the faulty flights. Writes DIR/faults.md "
+        "and DIR/faults.json: per fault and filter the NaN rows, whether and how soon a flag was raised, the "
+        "attitude error before, during and after the fault and the time to recover (docs/ROBUSTNESS.md).",
+    )
+    ft.add_argument("--filters", default="ins-wind,mekf,mekf-air,auto", metavar="A,B,...",
+                    help="estimator specs (default ins-wind,mekf,mekf-air,auto; one that needs a sensor the vehicle "
+                    "lacks is listed as not run)")
+    ft.add_argument("--vehicle", choices=("fixedwing", "quadrotor"), default="fixedwing",
+                    help="fixedwing (pitot and vanes) or quadrotor (no air data). Default fixedwing")
+    ft.add_argument("--wind", type=float, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
+    ft.add_argument("--duration", type=float, default=90.0, metavar="S",
+                    help="flight length in s (default 90); the faults start at a third of it")
+    ft.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the flight and the faults (default 0)")
+    ft.add_argument("--faults", default=None, metavar="NAME,...",
+                    help="only these cases of the matrix (default all; names as in faults.md, e.g. gyro-spike)")
+    ft.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory (made if missing)")
+    ft.set_defaults(func=_cmd_faults)
 
     i = sub.add_parser(
         "info",

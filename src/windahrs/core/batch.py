@@ -53,7 +53,7 @@ def _run_packed(
     cfg, prm, x, flags, sup,
     P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
     t_ev, kinds, vals, e_off,
-    q, bg, v, w, n_off, cov, c_off, dims,
+    q, bg, v, w, n_off, cov, c_off, c_rows, dims,
     order,
 ):  # fmt: skip
     """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
@@ -62,7 +62,7 @@ def _run_packed(
     w_cols[r]) at w_off[r]; inn (L, 5), acc (L,): its logs in rows l_off[r]:l_off[r + 1];
     t_ev, kinds, vals: its events in e_off[r]:e_off[r + 1]; q, bg, v, w: its outputs in
     rows n_off[r]:n_off[r + 1] (v, w: (0, 3) when not in the layout); cov (flat): its
-    (N, dims[r], dims[r]) covariances at c_off[r]."""
+    (c_rows[r], dims[r], dims[r]) covariances at c_off[r]."""
     for i in prange(order.shape[0]):
         r = order[i]
         n0, n1, e0, e1 = n_off[r], n_off[r + 1], e_off[r], e_off[r + 1]
@@ -79,7 +79,7 @@ def _run_packed(
             inn[l_off[r] : l_off[r + 1]],
             acc[l_off[r] : l_off[r + 1]],
         )
-        out_cov = cov[c_off[r] : c_off[r] + (n1 - n0) * d * d].reshape((n1 - n0, d, d))
+        out_cov = cov[c_off[r] : c_off[r + 1]].reshape((c_rows[r], d, d))
         run_events(
             st, t_ev[e0:e1], kinds[e0:e1], vals[e0:e1],
             q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, True,
@@ -123,6 +123,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     v = np.empty((N if len(runs[0].v) else 0, 3))
     w = np.empty((N if len(runs[0].w) else 0, 3))
     dims = np.array([r.cov.shape[1] for r in runs], dtype=np.int64)
+    c_rows = np.array([r.cov.shape[0] for r in runs], dtype=np.int64)
     c_off = _offsets([r.cov.size for r in runs])
     cov = np.empty(int(c_off[-1]))
     views = []
@@ -149,7 +150,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             cov=cov[c_off[i] : c_off[i + 1]].reshape(r.cov.shape),
         ))  # fmt: skip
     args = (cfg, prm, x, flags, sup, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
-            t_ev, kinds, vals, e_off, q, bg, v, w, n_off, cov, c_off, dims)  # fmt: skip
+            t_ev, kinds, vals, e_off, q, bg, v, w, n_off, cov, c_off, c_rows, dims)  # fmt: skip
     return args, views
 
 
@@ -160,14 +161,17 @@ def run_batch(
     initial: Sequence[InitialState | None] | None = None,
     threads: int | None = None,
     cov: CovRecord = "full",
+    cov_every: int | None = None,
 ) -> list[Estimate]:
     """The Estimates of ``est`` on ``flights`` (in their order), the runs advancing together
     in one compiled call on ``threads`` threads: the same Estimates as ``[est.run(f,
-    initial=i) for f, i in zip(flights, initial)]``. Flights may differ in length and in
-    sensors. initial: one InitialState or None per flight (default: None for all);
+    initial=i, cov_every=cov_every) for f, i in zip(flights, initial)]``. Flights may
+    differ in length and in sensors. initial: one InitialState or None per flight (default: None for all);
     threads: runs at once, 1 to NUMBA_NUM_THREADS (default: numba's current count); cov:
     the covariance recorded, "full" (as ``run``), "attitude" (the 3 x 3 attitude block, with
-    its labels) or "none" (:data:`~windahrs.filters.base.CovRecord`).
+    its labels) or "none" (:data:`~windahrs.filters.base.CovRecord`), at every cov_every-th
+    IMU sample (default: as ``run``, every sample within
+    :data:`~windahrs.core.layout.COV_BUDGET` per flight).
 
     The preparation (merging each flight's events, encoding its state) and the Estimates'
     checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
@@ -179,7 +183,7 @@ def run_batch(
         raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
     if not flights:
         return []
-    runs = [est.prepare(f, i, cov) for f, i in zip(flights, inits, strict=True)]
+    runs = [est.prepare(f, i, cov, cov_every) for f, i in zip(flights, inits, strict=True)]
     args, runs = _pack(runs)
     order = np.argsort([-len(r.t_ev) for r in runs], kind="stable").astype(np.int64)
     before = numba.get_num_threads()

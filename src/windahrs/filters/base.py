@@ -428,7 +428,7 @@ def kept_cov(est: Estimate, cov: CovRecord) -> Estimate:
     if cov == "full" or est.cov is None:
         return est
     if cov == "none":
-        return dataclasses.replace(est, cov=None, state_labels=())
+        return dataclasses.replace(est, cov=None, cov_index=None, state_labels=())
     idx = [i for i, lab in enumerate(est.state_labels) if lab.startswith("att_")]
     block = np.ascontiguousarray(est.cov[:, idx][:, :, idx])
     return dataclasses.replace(est, cov=block, state_labels=tuple(est.state_labels[i] for i in idx))

@@ -30,6 +30,7 @@ from typing import ClassVar
 import numpy as np
 
 from windahrs.aid import air_vector, drag, gnss_vel, gravity, mag, sideslip, tas
+from windahrs.core import imu_screen
 from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.filters.params import EskfParams
@@ -69,6 +70,7 @@ class Mekf(CompiledEstimator):
     parts: ClassVar[tuple[tuple[str, ...], ...]] = (
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
+        imu_screen.PARAMS,
         process.GYRO_SCALE_PARAMS,
         gravity.PARAMS,
         mag.PARAMS,
@@ -98,6 +100,7 @@ class InsWind(CompiledEstimator):
     parts = (
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
+        imu_screen.PARAMS,
         process.GYRO_SCALE_PARAMS,
         process.INS_PARAMS,
         process.WIND_PARAMS,

@@ -158,6 +158,15 @@ class EskfParams:
     ROS/mavros ``imu/data_raw``, streamed at 50 Hz at most); a gap in a fast stream is
     such a step too. 0: every step (point samples at any rate); a value above every step
     (e.g. 1e9): never ([mekf], [mekf-air], [ins-wind], [ekf7], [ekf10]).
+
+    IMU screen (:mod:`windahrs.core.imu_screen`; the same filters): a sample is held, and
+    the last propagated one propagated in its place, when an axis is beyond gyro_range rad/s
+    or accel_range m/s^2 (defaults 2000 deg/s and 32 g: the widest full scales of the MEMS
+    IMUs autopilots carry), or when its change since the last propagated sample exceeds
+    imu_spike_gate times the root mean square of the recent changes (default 8: Gaussian
+    noise never gets there, a sinusoidal vibration reaches 1.4; 0: no spike test) and the
+    next sample does not confirm it as motion. Held samples are logged in
+    ``Estimate.alerts["imu"]``.
     """
 
     gyro_noise: float = 0.01 * DEG
@@ -208,6 +217,9 @@ class EskfParams:
     accel_noise_online: bool = False
     reset_timeout: float = 5.0
     unmeasured_motion_dt: float = 1.0 / 50.0
+    gyro_range: float = 2000.0 * DEG
+    accel_range: float = 32.0 * G0
+    imu_spike_gate: float = 8.0
 
     def __post_init__(self) -> None:
         choices = {
