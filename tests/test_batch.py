@@ -161,3 +161,18 @@ def test_calls_from_several_python_threads_at_once() -> None:
     for out in got.values():
         for a, b in zip(out, ref, strict=True):
             np.testing.assert_array_equal(a, b)
+
+
+def test_a_covariance_stride_as_in_run() -> None:
+    flights = _flights("fixedwing")
+    est = make_estimator("ins-wind")
+    for cov in ("full", "attitude"):
+        batched = est.run_batch(flights, cov_every=7, cov=cov)  # type: ignore[attr-defined]
+        for fl, b in zip(flights, batched, strict=True):
+            one = est.run(fl, cov_every=7)  # type: ignore[call-arg]
+            assert b.cov is not None and one.cov is not None and b.cov_index is not None
+            np.testing.assert_array_equal(b.cov_index, np.arange(0, len(fl.imu.t), 7))
+            np.testing.assert_array_equal(b.cov_index, one.cov_index)
+            block = one.cov if cov == "full" else one.att_cov()
+            np.testing.assert_array_equal(b.cov, block)
+            np.testing.assert_array_equal(b.q_nb, one.q_nb)
