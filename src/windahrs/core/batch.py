@@ -9,10 +9,12 @@ Flights of different lengths are packed end to end, not padded: the events, the 
 the covariances, the innovation logs and the scratch space of all runs sit in one buffer
 each, and run ``r`` works on its own slice, ``[off[r], off[r + 1])``. Each Estimate's
 arrays are views of these buffers: all the Estimates together take the memory of the runs
-done one by one, but one Estimate kept alone keeps the whole batch's buffers alive (copy
-what you keep, or keep the batch's results together). The runs start longest first and are
-handed to the threads one at a time, so a long flight does not leave a thread idle at the
-end.
+done one by one, but one Estimate kept alone keeps its chunk's buffers alive (copy what
+you keep, or keep the results together). The flights go in chunks of about a quarter
+(:func:`chunk_size`): while one chunk's filters run, the Python work of the others (events
+merged and states encoded before, Estimates built and checked after) overlaps them. The
+runs go longest first and are handed to the threads one at a time, so a long flight does
+not leave a thread idle at the end of a chunk.
 
 Threads: ``threads`` runs at once (default: numba's current thread count, which is
 ``NUMBA_NUM_THREADS``, by default the number of cores, unless ``numba.set_num_threads``
@@ -34,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -45,7 +48,7 @@ from windahrs.estimate import Estimate
 from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
 from windahrs.flight import Flight
 
-__all__ = ["run_batch"]
+__all__ = ["chunk_size", "run_batch"]
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -175,25 +178,65 @@ def run_batch(
 
     The preparation (merging each flight's events, encoding its state) and the Estimates'
     checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
-    other; only the filters run in parallel."""
+    other; they overlap the filters: the flights go in chunks (:func:`chunk_size`), and
+    while one chunk's filters run, the previous chunk's Estimates are built and the next
+    chunk is prepared. Every flight is checked for its sensors before any runs."""
     flights = list(flights)
     inits = initial_per_flight(initial, len(flights))
     n_threads = _threads(threads)
     if cov not in COV_RECORDS:
         raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
-    if not flights:
-        return []
-    runs = [est.prepare(f, i, cov, cov_every) for f, i in zip(flights, inits, strict=True)]
-    args, runs = _pack(runs)
-    order = np.argsort([-len(r.t_ev) for r in runs], kind="stable").astype(np.int64)
+    for f in flights:
+        est.check(f)
+    # longest first (by IMU samples), so that the last runs of a chunk are short
+    by_length = sorted(range(len(flights)), key=lambda i: -len(flights[i].imu.t))
+    size = chunk_size(len(flights), n_threads)
+    out: list[Estimate | None] = [None] * len(flights)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as pool:
+        pending: tuple[Future[None], list[PreparedRun], list[int]] | None = None
+        for c0 in range(0, len(flights), size):
+            chunk = by_length[c0 : c0 + size]
+            args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every) for i in chunk])
+            running = pool.submit(_launch, args, n_threads)  # starts when the previous chunk is done
+            if pending is not None:
+                _collect(est, pending, out)
+            pending = (running, runs, chunk)
+        if pending is not None:
+            _collect(est, pending, out)
+    return [e for e in out if e is not None]
+
+
+def chunk_size(n_runs: int, threads: int) -> int:
+    """How many runs go to the threads at once: about a quarter of the runs (so that the
+    Python work of the others overlaps them), at least two per thread (so that the
+    threads stay busy to the end of a chunk)."""
+    return max(2 * threads, -(-n_runs // 4), 1)
+
+
+def _launch(args: tuple[object, ...], threads: int) -> None:
+    """The packed runs (:func:`_pack`) through :func:`_run_packed` on ``threads`` threads,
+    in the order given (numba's thread count and chunk size are per Python thread: set
+    here, in the thread that makes the call)."""
+    order = np.arange(len(args[0]), dtype=np.int64)  # type: ignore[arg-type]
     before = numba.get_num_threads()
-    numba.set_num_threads(n_threads)
+    numba.set_num_threads(threads)
     try:
         with numba.parallel_chunksize(1), _guard():
             _run_packed(*args, order)
     finally:
         numba.set_num_threads(before)
-    return [est.finish(r) for r in runs]
+
+
+def _collect(
+    est: CompiledEstimator,
+    pending: tuple[Future[None], list[PreparedRun], list[int]],
+    out: list[Estimate | None],
+) -> None:
+    """Wait for a chunk's filters and put its Estimates at their flights' places."""
+    running, runs, chunk = pending
+    running.result()
+    for i, r in zip(chunk, runs, strict=True):
+        out[i] = est.finish(r)
 
 
 #: Serialises the parallel calls where numba's threading layer cannot take concurrent ones.
