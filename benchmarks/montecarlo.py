@@ -14,7 +14,8 @@ fixed wing, wind 8 m/s, default sensors, seeds 0 to runs - 1 (200 Hz IMU, magnet
 GNSS, air data). Each figure is the whole call, Python included: merging the events,
 encoding the states, the filters, the Estimates and their checks; for the batched calls the
 compiled parallel loop alone ("kernel") is also given, which is what more threads speed up
-(the rest runs in Python, one flight after the other). Everything is warmed up first (JIT
+(the rest runs in Python, one flight after the other, overlapping the filters of another
+chunk of flights). Everything is warmed up first (JIT
 compilation or a load from numba's cache), then timed in ``--repeat`` rounds, each round
 timing every mode once (so that all modes see the same moments of a shared machine): the
 best is reported, because a shared machine's timings vary by up to 2x, and the median
