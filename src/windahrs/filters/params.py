@@ -19,6 +19,7 @@ TOML layout (any of the tables may be left out)::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import warnings
@@ -257,12 +258,18 @@ class EskfParams:
 FLIGHT_PARAMS: dict[str, str] = {"gnss.timing_sigma_s": "gnss_timing_sigma"}
 
 
+@functools.cache
+def _defaults() -> EskfParams:
+    """EskfParams() built and validated once (every run asks which fields are defaults)."""
+    return EskfParams()
+
+
 def flight_params(params: EskfParams, meta: Mapping[str, Any], used: frozenset[str] | None = None) -> EskfParams:
     """``params`` with the fields a flight's ``meta`` declares (:data:`FLIGHT_PARAMS`),
     each where the parameters leave it at its default and (``used``) the estimator uses it;
     a value set explicitly wins. ValueError naming the meta key for a bad value."""
     changes: dict[str, Any] = {}
-    default = EskfParams()
+    default = _defaults()
     for key, name in FLIGHT_PARAMS.items():
         if key not in meta or (used is not None and name not in used):
             continue
