@@ -27,8 +27,11 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import subprocess
-from collections.abc import Iterator
+import sys
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -401,3 +404,123 @@ def test_enough_cases() -> None:
     commands = {c.argv.split()[0] for c in CASES.values() if c.argv}
     assert commands >= {"simulate", "info", "filters", "estimate", "compare", "report", "experiment", "reproduce",
                         "bench-data"}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Ctrl-C and a full file system: the CLI in a subprocess
+
+
+def _cli(args: list[str], cwd: Path, stderr: Path) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), os.environ.get("PYTHONPATH", "")])}
+    with open(stderr, "wb") as err:
+        return subprocess.Popen([sys.executable, "-m", "windahrs.cli", *args], cwd=cwd, env=env,
+                                stdout=subprocess.DEVNULL, stderr=err)
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a running process (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _wait_until(what: str, ready: Callable[[], bool], proc: subprocess.Popen[bytes], timeout: float = 300.0) -> None:
+    t0 = time.monotonic()
+    while not ready():
+        if proc.poll() is not None:
+            pytest.fail(f"the command ended (status {proc.returncode}) before {what}")
+        if time.monotonic() - t0 > timeout:
+            proc.kill()
+            pytest.fail(f"no {what} within {timeout:g} s")
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def long_flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 10-minute flight: ins-wind runs on it for seconds, time enough to interrupt it."""
+    out = tmp_path_factory.mktemp("long") / "long.h5"
+    assert main(["simulate", "--duration", "600", "--seed", "3", "--out", str(out)]) == 0
+    return out
+
+
+SIGINT_CASES: dict[str, tuple[str, str]] = {
+    # name: (argv, what shows the command is working: "cpu" or the progress line's prefix)
+    "estimate": ("estimate {long} --filter ins-wind --out {t}/out/est.h5", "cpu"),
+    "experiment": ("experiment --runs 50 --duration 30 --filters ins-wind,mekf", "experiment:"),
+    "reproduce": ("reproduce --quick --runs 2 --duration 10 --out {t}/out/repro", "reproduce:"),
+    "bench-data": ("bench-data {recs} --filters ins-wind,mekf --out {t}/out/bench.json", "bench-data:"),
+}
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc to see the command working")
+@pytest.mark.parametrize("name", list(SIGINT_CASES))
+def test_sigint_leaves_nothing(name: str, tmp_path: Path, long_flight: Path) -> None:
+    """Ctrl-C while the command works: exit status 130, one line saying so, no traceback,
+    and nothing left in the output folder (no file, no temporary file, no created folder)."""
+    argv, signal_of_work = SIGINT_CASES[name]
+    (tmp_path / "out").mkdir()
+    recs = tmp_path / "recs"
+    recs.mkdir()
+    shutil.copy(long_flight, recs / "a.h5")
+    shutil.copy(long_flight, recs / "b.h5")
+    args = shlex.split(argv.format(long=long_flight, t=tmp_path, recs=recs))
+    err = tmp_path / "stderr.txt"
+    if signal_of_work == "cpu":
+        # the CPU time the command needs to start (imports, the estimator built) and fail
+        # on a missing file; past it by a second, it is running the estimator
+        base = _cli(["estimate", str(tmp_path / "none.h5"), "--filter", "ins-wind"], tmp_path, err)
+        t0 = time.monotonic()
+        while base.poll() is None and time.monotonic() - t0 < 120:
+            start_cpu = _cpu_seconds(base.pid)
+            time.sleep(0.02)
+        base.wait()
+        proc = _cli(args, tmp_path, err)
+        _wait_until("estimator run", lambda: _cpu_seconds(proc.pid) > start_cpu + 1.0, proc)
+    else:
+        proc = _cli(args, tmp_path, err)
+        _wait_until("progress line", lambda: signal_of_work in err.read_text(errors="replace"), proc)
+    proc.send_signal(signal.SIGINT)
+    rc = proc.wait(timeout=120)
+    text = err.read_text(errors="replace")
+    assert rc == 130, text
+    assert "Traceback" not in text
+    lines = [ln for ln in text.splitlines() if ln.strip() and not PROGRESS.match(ln)]
+    assert lines == [f"windahrs {name}: interrupted; nothing was written"], text
+    assert list((tmp_path / "out").iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "recs", "stderr.txt"]
+
+
+@pytest.fixture(scope="module")
+def full_disk(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """A 64 KiB tmpfs (root only), or a skip saying why there is none."""
+    d = tmp_path_factory.mktemp("full")
+    if not _mount_tmpfs(d, "size=64k"):
+        pytest.skip("no full file system to write on: mounting a small tmpfs needs root (or CAP_SYS_ADMIN)")
+    try:
+        yield d
+    finally:
+        _unmount(d)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        "simulate --duration 3 --out {full}/x.h5",
+        "estimate {flight} --filter mekf --out {full}/e.h5",
+        "report {flight} --filters mekf --out {full}/r.html",
+    ],
+)
+def test_full_file_system(argv: str, full_disk: Path, flight: Path, tmp_path: Path) -> None:
+    """An output on a file system that fills up while it is written: exit status 1 (not the
+    input's fault), one line naming the user's path and the reason, no crash (h5py segfaults
+    writing HDF5 to a full disk), nothing left on the file system."""
+    err = tmp_path / "stderr.txt"
+    proc = _cli(shlex.split(argv.format(full=full_disk, flight=flight)), tmp_path, err)
+    rc = proc.wait(timeout=300)
+    text = err.read_text(errors="replace")
+    assert rc == 1, text
+    assert "Traceback" not in text
+    lines = text.strip().splitlines()
+    assert len(lines) == 1, text
+    name = argv.split("/")[-1]
+    assert f"{full_disk}/{name}: cannot write (No space left on device)" in lines[0]
+    assert list(full_disk.iterdir()) == []

@@ -769,9 +769,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"windahrs {args.command}: {text}", file=sys.stderr)
         return status
 
+    def unraisable(u: sys.UnraisableHookArgs) -> None:
+        # A Ctrl-C that lands in a finaliser or weakref callback (numba's and llvmlite's
+        # __del__, h5py's dealloc) cannot propagate: Python would print "Exception ignored"
+        # with a traceback and go on. Raise it again in the main flow instead.
+        if u.exc_type is not None and issubclass(u.exc_type, KeyboardInterrupt):
+            if retry is not None:  # 10 ms on, outside this hook and the finaliser
+                signal.setitimer(signal.ITIMER_REAL, 0.01)
+            return
+        print(f"windahrs {args.command}: warning: ignored in {u.object!r}: {u.exc_type.__name__}: "
+              f"{' '.join(str(u.exc_value).split())}", file=sys.stderr)
+
     # Python's own handler raises KeyboardInterrupt too; this one also remembers it, for a
-    # Ctrl-C raised where it is swallowed (h5py reports exceptions in its callbacks and goes on)
+    # Ctrl-C raised where it is swallowed
     previous = signal.signal(signal.SIGINT, on_sigint) if _main_thread() else None
+    retry = signal.signal(signal.SIGALRM, on_sigint) if previous is not None and hasattr(signal, "setitimer") else None
+    previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", EstimatorWarning)  # each flight's, not the first only
@@ -798,6 +811,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(1, f"error: internal error, please report it (set WINDAHRS_DEBUG=1 for the traceback): "
                        f"{type(exc).__name__}: {_one_line(exc, args)}")
     finally:
+        sys.unraisablehook = previous_hook
+        if retry is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, retry)
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
 
