@@ -524,3 +524,51 @@ def test_full_file_system(argv: str, full_disk: Path, flight: Path, tmp_path: Pa
     name = argv.split("/")[-1]
     assert f"{full_disk}/{name}: cannot write (No space left on device)" in lines[0]
     assert list(full_disk.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# what is written: the user's umask; nothing left by a command that fails after creating its output
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_files_get_the_users_umask(umask: int, tmp_path: Path, flight: Path) -> None:
+    """Files are created as a plain open() would (0o666 less the umask), not 0o600."""
+    old = os.umask(umask)
+    try:
+        assert main(["estimate", str(flight), "--filter", "mekf", "--out", str(tmp_path / "e.h5")]) == 0
+        assert main(["bench-data", str(flight), "--filters", "mekf", "--out", str(tmp_path / "b.json")]) == 0
+    finally:
+        os.umask(old)
+    for name in ("e.h5", "b.json"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == 0o666 & ~umask, name
+
+
+@pytest.mark.parametrize("existing", [False, True])
+def test_reproduce_failing_late_removes_what_it_wrote(
+    existing: bool, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """reproduce failing while it writes its results (here: after its first file): the
+    folder it created is removed; in a folder that existed, only the files it added."""
+    import windahrs.experiments.reproduce as rep
+    import windahrs.report.reproduction as rr
+
+    def fake_run(*args: object, **kwargs: object) -> object:
+        return object()
+
+    def half_write(res: object, out: Path) -> list[Path]:
+        (out / "results.json").write_text("{}")
+        raise RuntimeError("the figures failed")
+
+    monkeypatch.setattr(rep, "run_reproduction", fake_run)
+    monkeypatch.setattr(rr, "write_reproduction", half_write)
+    out = tmp_path / "new" / "repro"
+    if existing:
+        out.mkdir(parents=True)
+        (out / "mine.txt").write_text("the user's")
+    assert main(["reproduce", "--quick", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1].endswith("RuntimeError: the figures failed") and "Traceback" not in err
+    if existing:
+        assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
+    else:
+        assert list(tmp_path.iterdir()) == []
