@@ -14,7 +14,9 @@ like a shell line after its placeholders are filled in:
 ``{ro}``      a folder on a read-only file system (a read-only tmpfs as root, else a folder
               without write permission); rows using it skip where neither is possible
 
-``files`` are created under ``{t}`` first: ``(name, text)``, a text of ``"/"`` makes a folder.
+``files`` are created under ``{t}`` first: ``(name, text)``; a text of ``"/"`` makes a folder,
+``"|"`` a FIFO. Lines of the documented progress of experiment, reproduce and bench-data on
+stderr are not counted (:data:`PROGRESS`).
 ``expect`` must occur in the one line on stderr; ``rc`` is the exit status (2: bad input).
 
 Ctrl-C (SIGINT) and a full file system run the CLI in a subprocess (:func:`test_sigint_leaves_nothing`,
@@ -101,6 +103,8 @@ CASES: dict[str, Case] = {
     "sim-out-parent-file": Case("simulate --duration 1 --out {t}/afile/x.h5", "afile is not a directory", A_FILE),
     "sim-out-no-parent": Case("simulate --duration 1 --out {t}/nodir/x.h5", "nodir does not exist"),
     "sim-out-readonly": Case("simulate --duration 1 --out {ro}/x.h5", "--out"),
+    "sim-out-fifo": Case("simulate --duration 1 --out {t}/fifo", "not a regular file", (("fifo", "|"),)),
+    "est-out-fifo": Case(f"{EST} --out {{t}}/fifo", "not a regular file", (("fifo", "|"),)),
     "sim-out-trailing-slash": Case("simulate --duration 1 --out {t}/x.h5/", "--out"),
     # ---- info -----------------------------------------------------------------------------------------------
     "info-missing": Case("info {t}/none.h5", "none.h5"),
@@ -112,6 +116,8 @@ CASES: dict[str, Case] = {
     "info-text-file": Case("info {t}/notes.txt", "notes.txt", (("notes.txt", "hello\n"),)),
     "info-unknown-dir": Case("info {t}/adir", "adir", A_DIR),
     "info-bad-manifest": Case("info {t}/csv", "windahrs.toml", (("csv", "/"), ("csv/windahrs.toml", "[[[\n"))),
+    "info-fifo": Case("info {t}/fifo", "not a regular file", (("fifo", "|"),)),
+    "est-fifo": Case("estimate {t}/fifo.h5 --filter mekf", "not a regular file", (("fifo.h5", "|"),)),
     "info-parent-file": Case("info {t}/afile/x.h5", "afile", A_FILE),
     "info-extra-arg": Case("info {flight} {flight}", "unrecognized"),
     "info-no-arg": Case("info", "FILE"),
@@ -153,6 +159,7 @@ CASES: dict[str, Case] = {
     "toml-missing": Case(f"{EST} --params {{t}}/none.toml", "none.toml"),
     "toml-empty-path": Case(f"{EST} --params ''", "--params"),
     "toml-dir": Case(f"{EST} --params {{t}}/adir", "adir", A_DIR),
+    "toml-fifo": Case(f"{EST} --params {{t}}/fifo", "not a regular file", (("fifo", "|"),)),
     "toml-parent-file": Case(f"{EST} --params {{t}}/afile/p.toml", "afile", A_FILE),
     "toml-decode": Case(f"{EST} {P}", "p.toml", toml("[windahrs\ngyro_noise = 1\n")),
     "toml-decode-value": Case(f"{EST} {P}", "p.toml", toml("[windahrs]\ngyro_noise = \n")),
@@ -355,6 +362,8 @@ def _run_case(case: Case, tmp: Path, flight: Path, ro: Path | str, capsys: pytes
         p = tmp / name
         if text == "/":
             p.mkdir()
+        elif text == "|":
+            os.mkfifo(p)
         else:
             p.write_bytes(text.encode("utf-8", "surrogateescape"))
     argv = shlex.split(case.argv.format(flight=flight, t=tmp, ro=ro))

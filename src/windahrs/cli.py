@@ -392,6 +392,8 @@ def _read(path: Path) -> Flight:
     from windahrs.filters.params import imu_rate_warning
     from windahrs.io import read_flight
 
+    if path.exists() and not (path.is_file() or path.is_dir()):  # reading a FIFO would wait forever
+        raise UsageError(f"{path}: not a regular file or directory (a device, FIFO or socket)")
     flight = read_flight(path)
     warning = imu_rate_warning(flight.imu.t)
     if warning:

@@ -87,6 +87,8 @@ def check_writable(path: str | os.PathLike[str]) -> Path:
     target = Path(text)
     if text.endswith(os.sep) or target.is_dir():
         raise OutputError(f"{text}: is a directory, expected a file name")
+    if target.exists() and not target.is_file():  # a device or FIFO would be replaced by a file
+        raise OutputError(f"{text}: is not a regular file (a device, FIFO or socket), expected a file name")
     parent = target.parent
     if not parent.exists():
         # name the first missing folder, or the file standing where a folder should be

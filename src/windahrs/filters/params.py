@@ -443,6 +443,8 @@ def read_param_file(path: str | Path) -> dict[str, Any]:
         raise ValueError("parameter file: expected a path, found ''")
     if p.is_dir():
         raise ValueError(f"{p}: is a directory, expected a TOML parameter file")
+    if p.exists() and not p.is_file():  # reading a FIFO would wait forever
+        raise ValueError(f"{p}: not a regular file (a device, FIFO or socket), expected a TOML parameter file")
     try:
         return tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
