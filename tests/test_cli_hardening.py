@@ -581,3 +581,18 @@ def test_reproduce_failing_late_removes_what_it_wrote(
         assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
     else:
         assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_while_the_file_is_written_leaves_nothing(
+    tmp_path: Path, flight: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C in the last moment of a write (the temporary file written, being synced):
+    exit status 130, neither the output nor its temporary file left."""
+
+    def interrupted(fd: int) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "fsync", interrupted)
+    assert main(["estimate", str(flight), "--filter", "mekf", "--out", str(tmp_path / "e.h5")]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "windahrs estimate: interrupted; nothing was written"
+    assert list(tmp_path.iterdir()) == []
