@@ -10,7 +10,12 @@ argument, field or path, never a traceback, and with the exit status:
 - 130: interrupted by Ctrl-C (SIGINT), the shell's convention (128 + 2).
 
 Outputs are checked to be writable before the work starts; on any failure or interrupt the
-files and folders the command created are removed (:class:`_Outputs`).
+files and folders the command created are removed (:class:`_Outputs`). A command declares
+each output first thing: ``args.outputs.file(args.out, "--out")`` for a file,
+``args.outputs.folder(args.out, "--out")`` for a folder (created there), then writes through
+the atomic writers of :mod:`windahrs.store`. Paths take ``type=_path`` (``_file_path`` for an
+output file), numbers ``_number`` (finite), seeds ``_seed`` and run counts ``_count``; rows of
+``tests/test_cli_hardening.py`` check each command's bad input.
 """
 
 from __future__ import annotations
