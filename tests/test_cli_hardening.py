@@ -106,6 +106,36 @@ CASES: dict[str, Case] = {
     "sim-out-fifo": Case("simulate --duration 1 --out {t}/fifo", "not a regular file", (("fifo", "|"),)),
     "est-out-fifo": Case(f"{EST} --out {{t}}/fifo", "not a regular file", (("fifo", "|"),)),
     "sim-out-trailing-slash": Case("simulate --duration 1 --out {t}/x.h5/", "--out"),
+    # ---- simulate: --fault and --csv ----------------------------------------------------------------------------
+    "sim-fault-unknown": Case(f"simulate --duration 2 --fault nope {OUT}", "'nope'"),
+    "sim-fault-field": Case(f"simulate --duration 2 --fault gyro-spike:nope=1 {OUT}", "GyroSpike.nope"),
+    "sim-fault-nan": Case(f"simulate --duration 2 --fault gyro-spike:start=nan {OUT}", "GyroSpike.start"),
+    "sim-fault-bool": Case(f"simulate --duration 2 --fault gyro-spike:start=true {OUT}", "GyroSpike.start"),
+    "sim-fault-no-value": Case(f"simulate --duration 2 --fault duplicate-stamps {OUT}", "DuplicateStamps.start"),
+    "sim-fault-empty": Case(f"simulate --duration 2 --fault '' {OUT}", "fault"),
+    "sim-csv-exists": Case("simulate --duration 2 --csv --out {t}/adir", "does not exist yet", A_DIR),
+    "sim-csv-parent-file": Case("simulate --duration 2 --csv --out {t}/afile/c", "afile is not a directory", A_FILE),
+    "sim-csv-no-parent": Case("simulate --duration 2 --csv --out {t}/nodir/c", "nodir does not exist"),
+    "sim-csv-readonly": Case("simulate --duration 2 --csv --out {ro}/c", "--out"),
+    "sim-csv-huge": Case("simulate --duration 1e9 --csv --out {t}/c", "--duration"),
+    # ---- faults ---------------------------------------------------------------------------------------------
+    "flt-no-out": Case("faults", "--out"),
+    "flt-out-empty": Case("faults --out ''", "--out"),
+    "flt-out-file": Case("faults --out {t}/afile", "afile", A_FILE),
+    "flt-out-parent-file": Case("faults --out {t}/afile/f", "afile is not a directory", A_FILE),
+    "flt-out-readonly": Case("faults --out {ro}/f", "--out"),
+    "flt-filters-empty": Case("faults --filters '' --out {t}/f", "--filters"),
+    "flt-filters-unknown": Case("faults --filters mekf,nope --out {t}/f", "'nope'"),
+    "flt-filters-bool": Case("faults --filters mekf:gyro_noise=true --out {t}/f", "gyro_noise"),
+    "flt-wind-nan": Case("faults --wind nan --out {t}/f", "--wind"),
+    "flt-wind-huge": Case("faults --wind 1e6 --out {t}/f", "--wind"),
+    "flt-duration-zero": Case("faults --duration 0 --out {t}/f", "--duration"),
+    "flt-duration-huge": Case("faults --duration 1e9 --out {t}/f", "--duration"),
+    "flt-seed-neg": Case("faults --seed -1 --out {t}/f", "--seed"),
+    "flt-seed-huge": Case(f"faults --seed {HUGE_INT} --out {{t}}/f", "--seed"),
+    "flt-faults-unknown": Case("faults --faults nope --out {t}/f", "nope"),
+    "flt-faults-empty": Case("faults --faults '' --out {t}/f", "--faults"),
+    "flt-vehicle": Case("faults --vehicle paper --out {t}/f", "--vehicle"),
     # ---- info -----------------------------------------------------------------------------------------------
     "info-missing": Case("info {t}/none.h5", "none.h5"),
     "info-empty-path": Case("info ''", "''"),
@@ -352,7 +382,7 @@ def _tree(root: Path) -> dict[str, int]:
 
 
 #: A line of the documented progress of experiment, reproduce and bench-data (not an error line).
-PROGRESS = re.compile(r"^(experiment|reproduce|bench-data): +\d+%\|")
+PROGRESS = re.compile(r"^(experiment|reproduce|bench-data|faults \w+): +\d+%\|")
 
 
 def _run_case(case: Case, tmp: Path, flight: Path, ro: Path | str, capsys: pytest.CaptureFixture[str]) -> str:
@@ -412,7 +442,7 @@ def test_enough_cases() -> None:
     assert len(CASES) >= 150
     commands = {c.argv.split()[0] for c in CASES.values() if c.argv}
     assert commands >= {"simulate", "info", "filters", "estimate", "compare", "report", "experiment", "reproduce",
-                        "bench-data"}
+                        "bench-data", "faults"}
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from windahrs.filters.base import Estimator, InitialState, Streamer
     from windahrs.flight import Flight, FlightError, Site
     from windahrs.metrics import Score
+    from windahrs.sim.faults import Fault
     from windahrs.sim.scenario import Scenario
     from windahrs.sim.sensors import SensorSuite
 
@@ -123,6 +124,7 @@ def simulate(
     altitude: float | None = None,
     sensors: SensorSuite | None = None,
     site: Site | None = None,
+    faults: Sequence[Fault] = (),
 ) -> Flight:
     """A simulated flight with its truth.
 
@@ -130,7 +132,9 @@ def simulate(
     for "paper" the paper's wind speed), ``duration`` (s) and ``altitude`` (m), or a
     Scenario object (then those three must be left out). Exactly one of ``seed`` (int
     >= 0) or ``rng`` draws every random number. sensors, site: default suite and the
-    paper's site (:func:`windahrs.sim.scenario.simulate`).
+    paper's site (:func:`windahrs.sim.scenario.simulate`). faults: sensor faults
+    (:mod:`windahrs.sim.faults`) applied to the streams after the simulation, the truth
+    untouched, drawing from the same generator after it (``docs/ROBUSTNESS.md``).
     """
     import numpy as np
 
@@ -142,6 +146,12 @@ def simulate(
         raise ValueError(f"seed, rng: expected one of an integer seed or a numpy Generator, found {found}")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise ValueError(f"seed: expected an integer >= 0, found {seed!r}")
+    if faults:  # refused before the simulation's work, not after
+        from windahrs.sim.faults import Fault, FaultError
+
+        for i, f in enumerate(faults):
+            if not isinstance(f, Fault):
+                raise FaultError(f"faults[{i}]", "a Fault (windahrs.sim.faults)", type(f).__name__)
     if isinstance(scenario, str):
         sc = make_scenario(scenario, wind=0.0 if wind is None else wind, duration=duration, altitude=altitude)
     else:
@@ -149,7 +159,12 @@ def simulate(
         if given:
             raise ValueError(f"{', '.join(given)}: expected to be set in the Scenario object, found keywords")
         sc = scenario
-    flight = _simulate(sc, rng if rng is not None else np.random.default_rng(seed), sensors, site)
+    gen = rng if rng is not None else np.random.default_rng(seed)
+    flight = _simulate(sc, gen, sensors, site)
+    if faults:
+        from windahrs.sim.faults import inject
+
+        flight = inject(flight, faults, rng=gen)
     return flight if seed is None else flight.replace(meta={**flight.meta, "seed": seed})
 
 

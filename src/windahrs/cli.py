@@ -39,6 +39,7 @@ if TYPE_CHECKING:
 
     from windahrs.flight import Flight
     from windahrs.metrics import Score
+    from windahrs.sim.faults import Fault
 
 __all__ = ["main"]
 
@@ -105,6 +106,13 @@ def _file_path(text: str) -> Path:
     return _path(text)
 
 
+def _text_path(text: str) -> str:
+    """A path kept as typed (argparse type; the empty string refused), for an option that
+    is a file or a directory by another option: ``Path`` would drop a trailing "/"."""
+    _path(text)
+    return text
+
+
 class _Outputs:
     """The files and folders a command writes: each checked to be writable before the work
     starts, and removed when the command fails or is interrupted (files that did not
@@ -150,6 +158,20 @@ class _Outputs:
             except OSError as exc:
                 raise UsageError(f"{option}: {path}: cannot create the directory ({exc.strerror})") from None
         self._folders.append((top, before))
+        return path
+
+    def new_folder(self, path: Path, option: str) -> Path:
+        """A folder the command's writer creates itself, whole or not at all (it must not
+        exist yet): its parent checked, the folder removed on failure."""
+        from windahrs.store import OutputError, check_writable
+
+        if path.exists():
+            raise UsageError(f"{option}: expected a directory that does not exist yet, found {path}")
+        try:
+            check_writable(path)
+        except OutputError as exc:
+            raise UsageError(f"{option}: {exc}") from None
+        self._folders.append((path, None))
         return path
 
     def discard(self) -> None:
@@ -199,19 +221,94 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from windahrs.sim.scenario import check_simulation_size, make_scenario, simulate
     from windahrs.store import save_flight
 
-    args.outputs.file(args.out, "--out")
+    if args.csv:
+        args.out = args.outputs.new_folder(_path(args.out), "--out")
+    else:
+        try:
+            args.out = args.outputs.file(_file_path(args.out), "--out")
+        except argparse.ArgumentTypeError as exc:
+            raise UsageError(f"--out: {exc}") from None
     scenario = make_scenario(args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude)
     check_simulation_size(scenario)
+    faults = _faults(args.fault)
     # Shown on a terminal only (tqdm's disable=None); stages, as the work is vectorised.
     with tqdm(total=2, desc=f"simulate {args.vehicle}", unit="stage", disable=None, file=sys.stderr) as bar:
         flight = simulate(scenario, np.random.default_rng(args.seed))
         flight = flight.replace(meta={**flight.meta, "seed": args.seed})
+        if faults or args.csv:
+            from windahrs.sim.faults import inject_raw
+
+            raw = inject_raw(flight, faults, seed=args.seed)
         bar.update(1)
         bar.set_description(f"write {args.out.name}")
-        save_flight(flight, args.out)
+        if args.csv:
+            raw.write_csv_dir(args.out)
+        else:
+            if faults:
+                flight = raw.to_flight()
+            save_flight(flight, args.out)
         bar.update(1)
     print(f"wrote {args.out}")
-    print(flight.summary())
+    if not args.csv:
+        print(flight.summary())
+    return 0
+
+
+def _faults(specs: list[str] | None) -> list[Fault]:
+    """The --fault specs as faults (FaultError, a ValueError, naming the field)."""
+    from windahrs.sim.faults import parse_fault
+
+    return [parse_fault(s) for s in specs or ()]
+
+
+def _cmd_faults(args: argparse.Namespace) -> int:
+    import json
+
+    from windahrs.experiments.faults import check_cases, default_cases, matrix_markdown, run_fault_matrix
+    from windahrs.filters.registry import make_estimator
+    from windahrs.store import write_bytes
+
+    specs = _specs(args.filters)
+    for spec in specs:  # a bad name or field before any work
+        make_estimator(spec)
+    if not (np.isfinite(args.wind) and 0 <= args.wind <= 30):
+        raise UsageError(f"--wind: expected a W20 between 0 and 30 m/s, found {args.wind}")
+    if not (np.isfinite(args.duration) and 0 < args.duration <= 3600):
+        raise UsageError(f"--duration: expected between 0 and 3600 s, found {args.duration}")
+    cases = default_cases(args.duration / 3)
+    if args.faults is not None:
+        known = {c.name: c for c in cases}
+        wanted = _specs(args.faults, "--faults", "fault case")
+        unknown = [w for w in wanted if w not in known]
+        if unknown:
+            raise UsageError(f"--faults: expected names among {', '.join(known)}, found {', '.join(unknown)}")
+        cases = [known[w] for w in wanted]
+    try:
+        check_cases(cases, args.duration)
+    except ValueError as exc:
+        raise UsageError(f"--{exc}") from None
+    args.outputs.folder(args.out, "--out")  # made here; removed on failure (with what is in it)
+    with _runs_bar(len(specs) * (len(cases) + 1), f"faults {args.vehicle}") as bar:
+
+        def step(done: int, total: int, label: str) -> None:
+            bar.set_postfix_str(label, refresh=False)
+            bar.update(done - bar.n)
+
+        res = run_fault_matrix(args.vehicle, specs, wind=args.wind, duration=args.duration, seed=args.seed,
+                               cases=cases, progress=step)
+    rows = [r.as_dict() for r in res.rows]
+    write_bytes(args.out / "faults.json", (json.dumps(rows, indent=1) + "\n").encode("utf-8"))
+    write_bytes(args.out / "faults.md", matrix_markdown([res]).encode("utf-8"))
+    for note in res.not_run:
+        _note(f"not run: {note}")
+    n = len(res.rows)
+    flagged = sum(r.flagged for r in res.rows)
+    recovered = sum(r.recover_s is not None and r.recover_s <= 10.0 for r in res.rows)
+    nans = sum(r.nan_count > 0 for r in res.rows)
+    print(f"{n} runs: {flagged} flagged within 1 s, {recovered} back under twice the pre-fault RMS within 10 s, "
+          f"{nans} with NaN in the estimate")
+    print(f"wrote {args.out / 'faults.md'}")
+    print(f"wrote {args.out / 'faults.json'}")
     return 0
 
 
@@ -384,18 +481,20 @@ def _cmd_filters(args: argparse.Namespace) -> int:
 def _cmd_info(args: argparse.Namespace) -> int:
     from windahrs.io import detect_format
 
-    flight = _read(args.file)
+    flight = _read(args.file, say_repairs=False)  # the summary lists them
     print(f"file       {args.file}")
     print(f"format     {detect_format(args.file)}")
     print(flight.summary())
     return 0
 
 
-def _read(path: Path) -> Flight:
+def _read(path: Path, *, say_repairs: bool = True) -> Flight:
     """A flight file or a log/dataset the readers know (a warning on stderr when its IMU
-    rate is too low for the default noise)."""
+    rate is too low for the default noise, and one saying what the edge repaired: once per
+    flight, not once per estimator)."""
     from windahrs.filters.params import imu_rate_warning
     from windahrs.io import read_flight
+    from windahrs.repair import RepairWarning, repairs_text
 
     if path.exists() and not (path.is_file() or path.is_dir()):  # reading a FIFO would wait forever
         raise UsageError(f"{path}: not a regular file or directory (a device, FIFO or socket)")
@@ -403,6 +502,9 @@ def _read(path: Path) -> Flight:
     warning = imu_rate_warning(flight.imu.t)
     if warning:
         _note(f"warning: {warning}")
+    repaired = repairs_text(flight.repairs)
+    if repaired and say_repairs:
+        warnings.warn(f"{path}: input repaired at the edge: {repaired}", RepairWarning, stacklevel=2)
     return flight
 
 
@@ -452,10 +554,10 @@ def _bar(total: int, desc: str) -> tqdm:
     return tqdm(total=total, desc=desc, disable=None, file=sys.stderr)
 
 
-def _specs(text: str) -> list[str]:
+def _specs(text: str, option: str = "--filters", what: str = "filter") -> list[str]:
     specs = [s.strip() for s in text.split(",") if s.strip()]
     if not specs:
-        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
+        raise UsageError(f"{option}: expected a comma-separated list of {what} names, found none")
     return specs
 
 
@@ -599,8 +701,42 @@ def _parser() -> argparse.ArgumentParser:
         help="seconds (default: 120; 10 for paper)",
     )
     s.add_argument("--seed", type=_seed, default=0, metavar="N", help="random seed (default 0)")
-    s.add_argument("--out", type=_file_path, required=True, metavar="FILE.h5", help="output file")
+    s.add_argument("--fault", action="append", default=None, metavar="KIND:field=value:...",
+                   help="inject a sensor fault after the simulation (repeatable; the truth is untouched), e.g. "
+                   "gyro-spike:start=30:magnitude=40 or gnss-outage:start=20:duration=10; kinds and fields in "
+                   "docs/ROBUSTNESS.md. Faults whose stamps a Flight refuses (duplicate-stamps, out-of-order) are "
+                   "refused in an HDF5 flight file: write them with --csv")
+    s.add_argument("--csv", action="store_true",
+                   help="write --out as a generic-CSV directory (docs/csv-format.md, the truth as the reference) "
+                   "instead of HDF5, keeping what a Flight refuses (duplicated or out-of-order stamps, Inf) for the "
+                   "readers' edge repair")
+    # a file, or with --csv a directory: the text is kept (a trailing "/" names a directory)
+    s.add_argument("--out", type=_text_path, required=True, metavar="FILE.h5", help="output file")
     s.set_defaults(func=_cmd_simulate)
+
+    ft = sub.add_parser(
+        "faults",
+        help="the fault matrix: sensor faults x estimators on a simulated flight, flags and recovery",
+        description="Simulate one seeded flight, inject each fault of the catalogue in turn (gyro and "
+        "accelerometer spikes, NaN samples, dropouts, stuck values, vibration, saturation, a magnet, a drifting "
+        "or absent or late magnetometer, pitot and vane failures, GNSS outage and jumps, jittered, duplicated and "
+        "out-of-order stamps) and run every estimator on the clean and the faulty flights. Writes DIR/faults.md "
+        "and DIR/faults.json: per fault and filter the NaN rows, whether and how soon a flag was raised, the "
+        "attitude error before, during and after the fault and the time to recover (docs/ROBUSTNESS.md).",
+    )
+    ft.add_argument("--filters", default="ins-wind,mekf,mekf-air,auto", metavar="A,B,...",
+                    help="estimator specs (default ins-wind,mekf,mekf-air,auto; one that needs a sensor the vehicle "
+                    "lacks is listed as not run)")
+    ft.add_argument("--vehicle", choices=("fixedwing", "quadrotor"), default="fixedwing",
+                    help="fixedwing (pitot and vanes) or quadrotor (no air data). Default fixedwing")
+    ft.add_argument("--wind", type=_number, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
+    ft.add_argument("--duration", type=_number, default=90.0, metavar="S",
+                    help="flight length in s (default 90); the faults start at a third of it")
+    ft.add_argument("--seed", type=_seed, default=0, metavar="N", help="seed of the flight and the faults (default 0)")
+    ft.add_argument("--faults", default=None, metavar="NAME,...",
+                    help="only these cases of the matrix (default all; names as in faults.md, e.g. gyro-spike)")
+    ft.add_argument("--out", type=_path, required=True, metavar="DIR", help="output directory (made if missing)")
+    ft.set_defaults(func=_cmd_faults)
 
     i = sub.add_parser(
         "info",
@@ -608,7 +744,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Read a windahrs flight file or any log or dataset the readers know (.ulg, .bin/.log, "
         "BROAD .hdf5, an ALFA, generic-CSV or ANSFL directory) and print its format, its streams with their "
         "rates, missing samples and gaps, the duration, whether truth or a reference is present (and which "
-        "kind), the site and the reader's notes (meta).",
+        "kind), the site, what the reader repaired (samples out of order, repeated stamps, infinite values and "
+        "samples beyond the sensor's range: a count per stream and kind) and the reader's notes (meta).",
     )
     i.add_argument("file", type=_path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
     i.set_defaults(func=_cmd_info)
@@ -758,6 +895,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     interrupted; see the module docstring). Set WINDAHRS_DEBUG=1 for the traceback of an
     unexpected error."""
     from windahrs.estimate import EstimatorWarning
+    from windahrs.repair import RepairWarning
     from windahrs.store import OutputError
 
     parser = _parser()
@@ -795,6 +933,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", EstimatorWarning)  # each flight's, not the first only
+            warnings.simplefilter("always", RepairWarning)
             warnings.showwarning = _one_line_warning(args.command)
             status = func(args)
         if interrupted:

@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.flight import FlightError
-from windahrs.store import atomic_h5, open_h5, read_errors, read_record, write_record
+from windahrs.repair import repairs_text
+from windahrs.store import atomic_h5, open_h5, read_errors, read_record, read_repairs, write_record, write_repairs
 
 __all__ = ["ESTIMATE_FORMAT", "Estimate", "EstimatorWarning", "Innovations", "load_estimate", "save_estimate"]
 
@@ -76,15 +77,27 @@ class Estimate:
     filter: registry name; t (N,) s (the IMU times); q_nb (N, 4); gyro_bias_b (N, 3)
     rad/s or None; v_n (N, 3) m/s or None; wind_n (N, 3) m/s (velocity of the air) or
     None; cov (N, n, n) error-state covariance with ``state_labels`` (n,) naming each
-    dimension (attitude errors are body-frame rotation vectors, rad) or None;
+    dimension (attitude errors are body-frame rotation vectors, rad) or None; cov_index:
+    None (a covariance at every sample), or the (M,) sample indices of cov's M rows (a long
+    record keeps every k-th, :data:`windahrs.core.layout.COV_BUDGET`);
     innovations per sensor; skipped: NaN samples skipped per stream; params: text of the
     parameters used; meta: free-form. resets: per sensor (its innovation key), the resets
     of the state to it after its gate had kept it out for the filter's ``reset_timeout``,
     (K, 3) rows of [t s, size (rad for an attitude reset, m/s for a velocity reset), how
-    long the sensor had been kept out s]; :meth:`warnings` says them in words. alerts: what
+    long the sensor had been kept out s (NaN: it was absent at the start, and the state
+    turned to its first sample)]; :meth:`warnings` says them in words. alerts: what
     the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
     [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
-    the mean specific force (lost gravity).
+    the mean specific force (lost gravity); ``"imu"``: (K, 4) rows [t s, change of the
+    angular rate rad/s, of the specific force m/s^2, outcome: 1 beyond the sensor's range,
+    2 a spike (both not propagated), 3 motion (propagated one sample late)] of the IMU
+    samples the estimator's screen held (:mod:`windahrs.core.imu_screen`). flags: (N,)
+    uint32, one bit per reason (:data:`windahrs.flags.FLAGS`: rejected per sensor,
+    disturbance detected, fallback active, reset done, sensor absent, ...) at each sample,
+    or None (an estimator that keeps no such record); ``windahrs.flags.flag_spans`` turns
+    them into time spans with their reasons. repairs: what the edge repaired in the input
+    flight before the run (``Flight.repairs``: stream -> kind -> count, see
+    :mod:`windahrs.repair`).
     """
 
     filter: str
@@ -101,9 +114,18 @@ class Estimate:
     meta: dict[str, Any] = field(default_factory=dict)
     resets: dict[str, F64] = field(default_factory=dict)
     alerts: dict[str, F64] = field(default_factory=dict)
+    flags: NDArray[np.uint32] | None = None
+    cov_index: NDArray[np.int64] | None = None
+    repairs: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.t)
+        if self.cov_index is not None:
+            ci = self.cov_index
+            if ci.ndim != 1 or (len(ci) and (ci[0] < 0 or ci[-1] >= n or np.any(np.diff(ci) <= 0))):
+                raise FlightError("estimate.cov_index", f"increasing sample indices in [0, {n})", str(ci[:5]))
+        if self.flags is not None and self.flags.shape != (n,):
+            raise FlightError("estimate.flags", f"shape ({n},)", str(self.flags.shape))
         if self.q_nb.shape != (n, 4):
             raise FlightError("estimate.q_nb", f"shape ({n}, 4)", str(self.q_nb.shape))
         for name in ("gyro_bias_b", "v_n", "wind_n"):
@@ -112,14 +134,25 @@ class Estimate:
                 raise FlightError(f"estimate.{name}", f"shape ({n}, 3)", str(v.shape))
         if self.cov is not None:
             m = len(self.state_labels)
-            if self.cov.shape != (n, m, m):
+            nc = n if self.cov_index is None else len(self.cov_index)
+            if self.cov.shape != (nc, m, m):
                 raise FlightError(
-                    "estimate.cov", f"shape ({n}, {m}, {m}) from state_labels", str(self.cov.shape)
+                    "estimate.cov", f"shape ({nc}, {m}, {m}) from state_labels and cov_index", str(self.cov.shape)
                 )
 
+    @property
+    def cov_t(self) -> F64:
+        """The times of the covariance's rows, s (``t``, or ``t[cov_index]``)."""
+        return self.t if self.cov_index is None else self.t[self.cov_index]
+
+    @property
+    def cov_rows(self) -> NDArray[np.int64]:
+        """The sample index of each of the covariance's rows."""
+        return np.arange(len(self.t)) if self.cov_index is None else self.cov_index
+
     def block(self, prefix: str) -> F64 | None:
-        """Covariance block (N, k, k) of the dimensions whose labels start with ``prefix``
-        (e.g. "att", "bg", "wind"), or None when absent."""
+        """Covariance block (M, k, k) of the dimensions whose labels start with ``prefix``
+        (e.g. "att", "bg", "wind"), or None when absent; its rows at :attr:`cov_t`."""
         if self.cov is None:
             return None
         idx = [i for i, lab in enumerate(self.state_labels) if lab.startswith(prefix)]
@@ -128,14 +161,18 @@ class Estimate:
         return self.cov[:, idx][:, :, idx]
 
     def att_cov(self) -> F64 | None:
-        """Attitude error covariance (N, 3, 3), body-frame rotation vector, rad^2."""
+        """Attitude error covariance (M, 3, 3), body-frame rotation vector, rad^2, at :attr:`cov_t`."""
         return self.block("att_")
 
-    def warnings(self) -> list[str]:
-        """One line per thing the user must know, naming the estimator, what and when: each
-        reset (see ``resets``), and each gated sensor of which less than
-        :data:`LOW_ACCEPTANCE` of the samples were accepted."""
+    def warnings(self, *, repairs: bool = True) -> list[str]:
+        """One line per thing the user must know, naming the estimator, what and when: the
+        repairs of its input (``repairs``; left out with ``repairs=False``), each reset (see
+        ``resets``), and each gated sensor of which less than :data:`LOW_ACCEPTANCE` of the
+        samples were accepted."""
         out = []
+        text = repairs_text(self.repairs) if repairs else None
+        if text:
+            out.append(f"{self.filter}: input repaired at the edge: {text}")
         for sensor, rows in self.resets.items():
             for t, size, out_for in rows:
                 if sensor == "accel":
@@ -148,11 +185,21 @@ class Estimate:
                         what += ", magnetometer no longer fused"
                 else:
                     what = f"state reset to it by {size:.3g}"
+                if not np.isfinite(out_for):  # a sensor that was absent at the start
+                    out.append(f"{self.filter}: {sensor} absent at the start; at its first sample, "
+                               f"t = {t:.2f} s, {what}")
+                    continue
                 why = "rejected" if sensor == "gnss" else "more than 45 deg off the state"
                 out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "
                        f"from t = {t0:.1f} to {t1:.1f} s (lost gravity?)")
+        held = self.alerts.get("imu")
+        if held is not None and np.any(held[:, 3] < 3):
+            lost = held[held[:, 3] < 3]
+            n_range = int(np.sum(lost[:, 3] == 1))
+            out.append(f"{self.filter}: {len(lost)} IMU samples not propagated ({n_range} beyond the sensor's range, "
+                       f"{len(lost) - n_range} spikes), the first at t = {lost[0, 0]:.2f} s")
         for sensor, inn in self.innovations.items():
             n = len(inn.accepted)
             share = float(np.mean(inn.accepted)) if n else 1.0
@@ -168,7 +215,7 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
         f.attrs["filter"] = est.filter
         f.attrs["params"] = est.params
         f.attrs["state_labels"] = ",".join(est.state_labels)
-        for name in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov"):
+        for name in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index"):
             v = getattr(est, name)
             if v is not None:
                 f.create_dataset(name, data=v, compression="gzip", compression_opts=1, shuffle=True)
@@ -185,6 +232,7 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
             grp = f.create_group(name)
             for k, v in getattr(est, name).items():
                 grp.create_dataset(k, data=v)
+        write_repairs(f, est.repairs)
     return Path(path)
 
 
@@ -192,7 +240,8 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
     """Read an Estimate written by :func:`save_estimate` (StoreError on a bad file)."""
     with read_errors(path, "unreadable estimate"), open_h5(path, ESTIMATE_FORMAT, (ESTIMATE_VERSION,)) as f:
         labels = str(f.attrs["state_labels"])
-        arrays = {k: f[k][()] for k in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov") if k in f}
+        names = ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index")
+        arrays = {k: f[k][()] for k in names if k in f}
         inns = {
             k: read_record(g, Innovations, f"{path}:/innovations/{k}")
             for k, g in f["innovations"].items()
@@ -206,6 +255,7 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             meta=dict(f["meta"].attrs.items()),
             resets=_float_group(f, "resets"),
             alerts=_float_group(f, "alerts"),
+            repairs=read_repairs(f),
             **arrays,
         )
 

@@ -152,17 +152,19 @@ def score(est: Estimate, flight: Flight, *, remove_heading: bool | None = None) 
 
 
 def nees_attitude(est: Estimate, flight: Flight, *, with_bias: bool = True) -> F64:
-    """NEES (N,) of the attitude error (and gyro bias error when estimated and
-    ``with_bias``) against the truth, with the estimate's tangent-space covariance."""
+    """NEES (M,) of the attitude error (and gyro bias error when estimated and
+    ``with_bias``) against the truth, with the estimate's tangent-space covariance, at the
+    samples it was recorded at (``est.cov_rows``: every sample but in long records)."""
     tr = flight.truth
     if tr is None or est.cov is None:
         raise ValueError("NEES needs simulation truth and an estimate with covariance")
     if not np.array_equal(tr.t, est.t):
         raise ValueError("NEES: truth and estimate must share the IMU time grid")
-    e = quat_log(quat_mul(quat_conj(est.q_nb), tr.q_nb))
+    k = est.cov_rows
+    e = quat_log(quat_mul(quat_conj(est.q_nb[k]), tr.q_nb[k]))
     labels = [lab for lab in est.state_labels if lab.startswith("att_")]
     if with_bias and est.gyro_bias_b is not None and tr.gyro_bias_b is not None:
-        e = np.hstack([e, tr.gyro_bias_b - est.gyro_bias_b])
+        e = np.hstack([e, tr.gyro_bias_b[k] - est.gyro_bias_b[k]])
         labels += [lab for lab in est.state_labels if lab.startswith("bg_")]
     idx = [est.state_labels.index(lab) for lab in labels]
     P = est.cov[:, idx][:, :, idx]

@@ -57,9 +57,11 @@ from windahrs.core.layout import (
     R_P0_BM,
     R_P0_W,
     R_P0_WV,
+    R_RESET_TOUT,
     S_AGNSS,
     S_AINS,
     S_FBAR,
+    S_INIT,
     S_MAG_FAULT,
     S_VGNSS,
     S_WPEND,
@@ -97,10 +99,14 @@ LEVEL_TAU = 3.0
 
 
 @njit(inline="always", **_JIT)
-def remember_gnss(x, flags, t, row):
+def remember_gnss(prm, x, flags, t, row):
     """Every filter keeps the last GNSS velocity (row[:3] m/s NED at t s) and its
     difference quotient, the acceleration used to compensate the accelerometer (and its
-    mean over LEVEL_TAU, the INS reset's levelling)."""
+    mean over LEVEL_TAU, the INS reset's levelling). The first sample after an outage longer
+    than reset_timeout restarts the reset's clock: the sensor was absent, not kept out by its
+    gate (PX4 EKF2 likewise times its GNSS fusion out only while it has samples to fuse)."""
+    if flags[S_VGNSS] == 1 and t - x[X_TGNSS] > prm[R_RESET_TOUT] and flags[S_INIT] == 1:
+        accepted_at(x, np.int64(INN_GNSS), t)
     if flags[S_VGNSS] == 1 and t > x[X_TGNSS]:
         dt = t - x[X_TGNSS]
         for a in range(3):

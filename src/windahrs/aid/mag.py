@@ -46,6 +46,7 @@ from windahrs.core.layout import (
     R_MAG_SIGMA,
     R_MAG_VAR,
     R_SITE_MAG,
+    S_HEADLESS,
     S_MAG_FAULT,
     S_MAGN,
     S_MBAR,
@@ -57,6 +58,7 @@ from windahrs.core.layout import (
     X_MBAR,
     X_Q,
     X_TMBAR,
+    X_TOK,
 )
 from windahrs.core.quat import (
     _dcm9,
@@ -155,6 +157,12 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     if mode == MAG_OFF or flags[S_MAG_FAULT] == 1:  # (declared faulty by a GNSS reset, aid.gnss_vel)
         return
     rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
+    if flags[S_HEADLESS] == 1:  # started without it (core.kernel.MAG_WAIT): its heading now
+        flags[S_HEADLESS] = 0
+        if cfg[C_SITE_MAG] == 1:  # (else the reference was just taken from this sample)
+            x[X_TOK + INN_MAG] = np.nan  # logged as out for NaN s: absent, not rejected
+            _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, _heading_offset(cfg, x, mx, my, mz, rx, ry))
+        return
     nu = work[W_NU]
     if prm[R_MAG_LP] > 0:  # fuse the low-passed field
         if flags[S_MBAR] == 0:

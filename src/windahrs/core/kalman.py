@@ -38,8 +38,10 @@ from windahrs.core.layout import (
     C_IW,
     C_N,
     C_OFF,
+    EVENT_LOGS,
     F64,
     I64,
+    INN_IMU,
     INN_RESET,
     L_CNT,
     L_FIRST,
@@ -126,7 +128,7 @@ def read_logs(
     (1 row)."""
     cnt, first = flags[L_CNT : L_CNT + N_SENSORS], flags[L_FIRST : L_FIRST + N_SENSORS]
     out: dict[str, Innovations] = {}
-    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0 and s != INN_RESET), key=lambda s: int(first[s])):
+    for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0 and s not in EVENT_LOGS), key=lambda s: int(first[s])):
         o, c = int(cfg[C_OFF + s]), int(cnt[s])
         name = SENSORS[s]
         rows = 1 if name == "mag" and heading else SENSOR_ROWS[s]
@@ -149,6 +151,16 @@ def read_resets(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
         mine = rows[rows[:, 1] == s]
         out[SENSORS[s]] = np.column_stack([mine[:, 0], mine[:, 2], mine[:, 3]])
     return out
+
+
+def read_held(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
+    """The IMU screen's log (windahrs.core.imu_screen) as ``Estimate.alerts["imu"]``: (K, 4)
+    rows [t s, change of the angular rate rad/s, of the specific force m/s^2, outcome: 1
+    beyond range, 2 a spike (not propagated), 3 motion (propagated one sample late)]; no key
+    when no sample was held."""
+    o, c = int(cfg[C_OFF + INN_IMU]), int(flags[L_CNT + INN_IMU])
+    rows = inn[o : o + c]
+    return {"imu": np.column_stack([rows[:, :3], rows[:, 4]])} if c else {}
 
 
 @njit(**_JIT)

@@ -46,7 +46,8 @@ from windahrs.aid.tas import (
     fuse_tas,
 )
 from windahrs.core.events import sample_ok
-from windahrs.core.kalman import grown_logs, log_layout, read_logs, read_resets
+from windahrs.core.imu_screen import screen_imu
+from windahrs.core.kalman import grown_logs, log_layout, read_held, read_logs, read_resets
 from windahrs.core.layout import (
     _JIT,
     AIR_AIRSPEED,
@@ -58,6 +59,7 @@ from windahrs.core.layout import (
     C_AVAR,
     C_CAP,
     C_COMP,
+    C_COV_EVERY,
     C_DIM,
     C_DRAG,
     C_HVERT,
@@ -99,6 +101,7 @@ from windahrs.core.layout import (
     N_X,
     NMAX,
     R_ACC_LP,
+    R_ACC_RANGE,
     R_ACC_VAR,
     R_BETA_VAR,
     R_DRAG_KX,
@@ -113,6 +116,7 @@ from windahrs.core.layout import (
     R_GNSS_TAU,
     R_GNSS_VAR,
     R_GRAV,
+    R_GYRO_RANGE,
     R_HOLD_DT,
     R_INI_BG,
     R_INI_Q,
@@ -140,6 +144,7 @@ from windahrs.core.layout import (
     R_SCALE2,
     R_SG2,
     R_SITE_MAG,
+    R_SPIKE_GATE,
     R_TAS_VAR,
     R_VANE_VAR,
     R_WH2,
@@ -148,6 +153,7 @@ from windahrs.core.layout import (
     S_FLAST,
     S_FMAG,
     S_FV,
+    S_HEADLESS,
     S_INIT,
     S_MBAR,
     S_VGNSS,
@@ -175,6 +181,7 @@ from windahrs.core.layout import (
     X_W,
     X_WLAST,
     KernelState,
+    cov_stride,
 )
 from windahrs.core.predict import (
     _predict_add,
@@ -205,6 +212,13 @@ from windahrs.filters.params import EskfParams, flight_params
 from windahrs.flight import Flight, Site
 from windahrs.models.error_state import Layout
 
+#: How long the initialisation waits for a magnetometer the flight has, s: a magnetometer
+#: logs at 10 Hz or more (PX4 50-100 Hz, ArduPilot 10-100 Hz), so a second without a sample
+#: is one that starts late or not at all. The filter then starts without it (its heading
+#: the gyro's from yaw 0, said in the Estimate) and turns to the field's heading at the first
+#: sample (:func:`windahrs.aid.mag.fuse_mag`).
+MAG_WAIT = 1.0
+
 
 @njit(**_JIT)
 def _try_init(cfg, prm, x, flags, P, work):
@@ -216,7 +230,8 @@ def _try_init(cfg, prm, x, flags, P, work):
         return
     if cfg[C_INI] == 0 and x[X_TIMU] - x[X_TWIN0] < prm[R_INI_WIN]:
         return
-    if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:
+    headless = cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0
+    if headless and x[X_TIMU] - x[X_TWIN0] < MAG_WAIT:
         return
     if cfg[C_WAIT_GNSS] == 1 and flags[S_FV] == 0:
         return
@@ -265,6 +280,7 @@ def _try_init(cfg, prm, x, flags, P, work):
     flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
         x[X_TOK + s] = x[X_TIMU]
+    flags[S_HEADLESS] = 1 if headless else 0
     flags[S_INIT] = 1
 
 
@@ -352,7 +368,8 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
 @njit(inline="always", **_JIT)
 def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
-    propagation, then the accelerometer's aid source."""
+    screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid source."""
+    row = screen_imu(cfg, prm, x, flags, inn, acc, work, t, row)
     dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
     if dt < 0:
         return
@@ -385,7 +402,7 @@ def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A GNSS velocity sample (finite): row[:3] m/s NED, at t s; before initialisation the
     first sample is kept for the initial velocity."""
-    remember_gnss(x, flags, t, row)
+    remember_gnss(prm, x, flags, t, row)
     if flags[S_INIT] == 0:
         if flags[S_FV] == 0:
             for a in range(3):
@@ -428,9 +445,12 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
 def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
-    covariance (N, d, d) (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I))."""
+    covariance (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I)) into row k / e of out_cov
+    (ceil(N / e), d, d) when k is a multiple of e = cfg[C_COV_EVERY]."""
     d = cfg[C_DIM]
     iv, iw = cfg[C_IV], cfg[C_IW]
+    e = cfg[C_COV_EVERY]
+    kc = k // e if k % e == 0 else -1
     if flags[S_INIT] == 0:
         q = (1.0, 0.0, 0.0, 0.0)
         if flags[S_WIN] == 1 and prm[R_INI_WIN] > 0:  # the window's mean so far, and the latest field
@@ -449,18 +469,21 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
                 out_v[k, a] = np.nan
             if iw >= 0:
                 out_w[k, a] = np.nan
-        for i in range(d):
-            for j in range(d):
-                out_cov[k, i, j] = np.nan
+        if kc >= 0:
+            for i in range(d):
+                for j in range(d):
+                    out_cov[kc, i, j] = np.nan
         return
     # (the covariance first, then the vectors, loaded before they are stored: measurably
     # faster code)
-    if cfg[C_ADD] == 0:
+    if kc < 0:
+        pass
+    elif cfg[C_ADD] == 0:
         for i in range(d):
             for j in range(d):
-                out_cov[k, i, j] = P[i, j]
+                out_cov[kc, i, j] = P[i, j]
     else:
-        _record_tangent_cov(cfg, x, P, work, k, out_cov)
+        _record_tangent_cov(cfg, x, P, work, kc, out_cov)
     q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
     b0, b1, b2 = x[X_BG], x[X_BG + 1], x[X_BG + 2]
     out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q0, q1, q2, q3
@@ -633,6 +656,7 @@ def make_state(
     cfg[C_IBA] = L.sl("ba").start if L.has("ba") else -1
     cfg[C_IBM] = L.sl("bm").start if L.has("bm") else -1
     cfg[C_DIM] = dim
+    cfg[C_COV_EVERY] = 1
     cfg[C_N] = n
     total = log_layout(cfg, np.asarray(caps, dtype=np.int64))
     n_pad = -(-n // PAD) * PAD  # the covariance's rows and columns, padded
@@ -682,6 +706,9 @@ def make_state(
     prm[R_RESET_TOUT] = p.reset_timeout
     prm[R_HOLD_DT] = p.unmeasured_motion_dt
     prm[R_GNSS_TAU] = p.gnss_timing_sigma
+    prm[R_GYRO_RANGE] = p.gyro_range
+    prm[R_ACC_RANGE] = p.accel_range
+    prm[R_SPIKE_GATE] = p.imu_spike_gate
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -801,9 +828,13 @@ class CompiledEstimator(Estimator):
         """The fields of :class:`EskfParams` this estimator uses."""
         return frozenset(name for part in cls.parts for name in part)
 
-    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+    def run(
+        self, flight: Flight, *, initial: InitialState | None = None, cov_every: int | None = None
+    ) -> Estimate:
         """Estimate the whole flight in one compiled loop (with the parameters the flight
-        itself declares, :func:`~windahrs.filters.params.flight_params`)."""
+        itself declares, :func:`~windahrs.filters.params.flight_params`); the covariance at
+        every cov_every-th IMU sample (default: every sample up to
+        :data:`~windahrs.core.layout.COV_BUDGET`, :func:`~windahrs.core.layout.cov_stride`)."""
         self.check(flight)
         params = flight_params(self.params, flight.meta, self.param_names())
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
@@ -816,7 +847,9 @@ class CompiledEstimator(Estimator):
         q, bg = np.empty((N, 4)), np.empty((N, 3))
         v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
         w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
-        cov = np.empty((N, d, d))
+        every = cov_stride(N, d, cov_every)
+        st.cfg[C_COV_EVERY] = every
+        cov = np.empty((-(-N // every), d, d))
         run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
         skipped = st.flags[K_SKIP : K_SKIP + 4]
         return checked(Estimate(
@@ -827,11 +860,13 @@ class CompiledEstimator(Estimator):
             v_n=v if L.has("v") else None,
             wind_n=w if L.has("wind") else None,
             cov=cov,
+            cov_index=None if every == 1 else np.arange(0, N, every),
             state_labels=L.labels(),
             innovations=_innovations(st, effective_mag_mode(params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=repr(params),
             resets=_resets(st),
+            alerts=read_held(st.cfg, st.flags, st.inn),
         ), flight)
 
     def streamer(

@@ -25,6 +25,12 @@ _JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
 #: products and sums.
 _JIT_FMA: dict[str, Any] = {**_JIT, "fastmath": {"contract"}}
 
+#: The covariances a run records at most, in floats (128 MiB): a longer record keeps every
+#: k-th IMU sample's (:func:`cov_stride`). The covariance changes on the time scale of the
+#: aiding (0.1 to 1 s), not the IMU's; a 20-min 200 Hz flight through [ins-wind] (18 states)
+#: keeps it at 40 Hz, an hour at 14 Hz, while every simulated experiment keeps every sample.
+COV_BUDGET = 1 << 24
+
 #: Width of the scratch rows: the largest covariance (ins-wind with accelerometer and
 #: magnetometer bias: 18; ekf10: 10) plus one.
 NMAX = 19
@@ -55,6 +61,10 @@ AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
     # not a sensor: the resets of the state to a sensor that its gate kept out too long
     # (rows: the sensor's index in this table, the size of the reset, how long it was out)
     ("reset", "imu", 3, ""),
+    # not a sensor either: the IMU samples not propagated (windahrs.core.imu_screen; rows:
+    # the change of the angular rate rad/s and of the specific force m/s^2 since the last
+    # propagated sample, the reason: 1 beyond the sensor's range, 2 a spike)
+    ("imu", "imu", 3, ""),
 )
 SENSORS = tuple(a[0] for a in AID_LOGS)
 SENSOR_STREAMS = tuple(a[1] for a in AID_LOGS)
@@ -66,6 +76,9 @@ INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SEN
 INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")
 INN_DRAG = SENSORS.index("drag")
 INN_RESET = SENSORS.index("reset")
+INN_IMU = SENSORS.index("imu")
+#: The logs that are not aid sources' innovations (read by windahrs.core.kalman.read_events).
+EVENT_LOGS = (INN_RESET, INN_IMU)
 
 # cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
 C_KIND = 0  # KIND_*
@@ -91,7 +104,8 @@ C_IBM = 19  # ... magnetometer bias (-1: none)
 C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
 C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
 C_AVAR = 22  # 1: add the on-line variance X_AVAR to the gravity measurement's noise
-C_OFF = 23  # (N_SENSORS,) first row of each sensor's log
+C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
+C_OFF = 24  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
@@ -142,7 +156,10 @@ R_INI_WIN = 53  # init_window, s: the specific force averaged before the attitud
 R_RESET_TOUT = 54  # reset_timeout, s (0: never reset)
 R_HOLD_DT = 55  # unmeasured_motion_dt, s: IMU steps longer than this add the held-sample noise
 R_GNSS_TAU = 56  # gnss_timing_sigma, s
-N_PRM = 57
+R_GYRO_RANGE = 57  # gyro_range, rad/s
+R_ACC_RANGE = 58  # accel_range, m/s^2
+R_SPIKE_GATE = 59  # imu_spike_gate (0: off)
+N_PRM = 60
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -172,7 +189,11 @@ X_DF = 61  # (3,) change of the specific force sample since the previous one, m/
 X_AINS = 64  # (3,) low-passed GNSS acceleration, NED, over the INS's mean specific force's time (X_FBAR)
 X_TOK = 67  # (N_SENSORS,) time each aid source last agreed with the state (NaN: not yet initialised)
 X_AVAR = X_TOK + N_SENSORS  # the accelerometer's on-line noise variance, (m/s^2)^2 per axis
-N_X = X_AVAR + 1
+X_SW2 = X_AVAR + 1  # mean square of the angular rate's sample-to-sample change, (rad/s)^2 (imu_screen)
+X_SF2 = X_AVAR + 2  # ... of the specific force's, (m/s^2)^2
+X_PEND = X_AVAR + 3  # (6,) the held sample's excess over the propagated one: w (rad/s), f (m/s^2)
+X_DTPEND = X_AVAR + 9  # its step, s
+N_X = X_AVAR + 10
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -191,7 +212,9 @@ S_WIN = 12  # the initialisation window has a sample
 S_MAG_FAULT = 13  # the magnetometer is no longer fused (declared faulty by a GNSS reset)
 S_AINS = 14  # X_AINS is set
 K_SKIP = 15  # (4,) NaN samples skipped: imu, mag, gnss, air
-L_CNT = 19  # (N_SENSORS,) log rows used per sensor
+S_NHELD = 19  # the last IMU sample's held parts (imu_screen): 1 its angular rate, 2 its specific force, 3 both
+S_HEADLESS = 20  # initialised without the magnetometer it has: the heading awaits its first sample
+L_CNT = 21  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 
@@ -209,7 +232,18 @@ W_S = 58  # (3,) innovation covariance
 W_SI = 61  # (3,) its inverse
 W_NU = 64  # innovation in columns 0..2
 W_DX = 65  # error-state correction
-N_WORK = 66
+W_IMU = 66  # the IMU sample propagated in place of a held one: w_b (3), f_b (3)
+N_WORK = 67
+
+
+def cov_stride(n: int, d: int, every: int | None = None) -> int:
+    """The stride of the recorded covariance for n IMU samples of a d-state filter: the
+    given one, or the smallest that keeps n d^2 / stride within :data:`COV_BUDGET`."""
+    if every is not None:
+        if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
+            raise ValueError(f"cov_every: expected an integer >= 1 (1: every sample), found {every!r}")
+        return int(every)
+    return max(1, -(-n * d * d // COV_BUDGET))
 
 
 class KernelState(NamedTuple):

@@ -9,9 +9,12 @@ velocity is bounded) or is measured (GNSS velocity differences). The mean over
 error theta moves it by ``2 g sin(theta / 2)``, read back as an angle. A disagreement beyond
 ``TILT_LIMIT_DEG`` held for ``TILT_HOLD_S`` is an alert: the estimator has lost gravity
 (upside-down start, a lock-out by its gate, divergence), whatever it believes of itself.
+Within ``TILT_TAU_S`` of a GNSS outage in a flight that has GNSS the check is off: the
+acceleration is not measured then, and a turn held through the outage would read as a tilt.
 
-:func:`checked` adds the alerts to an Estimate and emits each of ``Estimate.warnings()`` as an
-:class:`~windahrs.estimate.EstimatorWarning`.
+:func:`checked` adds the alerts and the flight's repairs to an Estimate and emits each of
+``Estimate.warnings()`` as an :class:`~windahrs.estimate.EstimatorWarning`, but the repairs:
+they are the flight's, the same for every estimator, and said once where the flight is read.
 """
 
 from __future__ import annotations
@@ -25,10 +28,11 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from windahrs.estimate import Estimate, EstimatorWarning
+from windahrs.flags import absent_mask, estimate_flags
 from windahrs.flight import Flight
 from windahrs.rotation import quat_rotate
 
-__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts"]
+__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts", "with_repairs"]
 
 F64 = NDArray[np.float64]
 
@@ -83,8 +87,13 @@ def tilt_alerts(
         dt *= step
     f_n = quat_rotate(q, f_b)  # a_n - g_n for a right attitude
     g = flight.gnss
+    unmeasured = np.zeros(len(t), dtype=bool)  # the acceleration not measured in the mean's time
     if g is not None and len(g.t) >= 3:
-        ok = np.isfinite(g.v_n).all(axis=1)
+        ok = np.asarray(np.isfinite(g.v_n).all(axis=1))
+        out = absent_mask(g.t, ok, t)
+        if out.any():  # a GNSS outage: a turn held through it reads as a tilt; not checked then
+            last = np.maximum.accumulate(np.where(out, t, -np.inf))
+            unmeasured = t - last < tau
         if ok.sum() >= 3:
             a_n = np.gradient(g.v_n[ok], g.t[ok], axis=0)
             for k in range(3):  # the measured acceleration, removed
@@ -101,7 +110,7 @@ def tilt_alerts(
     mean[:, 2] += flight.site.gravity
     off = np.linalg.norm(mean, axis=1) / (2.0 * flight.site.gravity)
     angle = np.degrees(2.0 * np.arcsin(np.clip(off, 0.0, 1.0)))
-    over = (angle > limit_deg) & (t >= t[0] + tau)
+    over = (angle > limit_deg) & (t >= t[0] + tau) & ~unmeasured
     rows = []
     edges = np.flatnonzero(np.diff(np.r_[0, over.astype(np.int8), 0]))
     for i0, i1 in zip(edges[::2], edges[1::2], strict=True):
@@ -110,12 +119,21 @@ def tilt_alerts(
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
+def with_repairs(est: Estimate, flight: Flight) -> Estimate:
+    """``est`` carrying ``flight.repairs`` (a copy)."""
+    if not flight.repairs:
+        return est
+    return dataclasses.replace(est, repairs={k: dict(v) for k, v in flight.repairs.items()})
+
+
 def checked(est: Estimate, flight: Flight) -> Estimate:
-    """``est`` with its tilt alerts (``alerts["tilt"]``), each of its warnings emitted as an
-    EstimatorWarning."""
+    """``est`` with its tilt alerts (``alerts["tilt"]``), its per-sample flags
+    (:func:`windahrs.flags.estimate_flags`) and the flight's repairs, each of its warnings but
+    the repairs emitted as an EstimatorWarning."""
     rows = tilt_alerts(est, flight)
     if len(rows):
         est = dataclasses.replace(est, alerts={**est.alerts, "tilt": rows})
-    for line in est.warnings():
+    est = dataclasses.replace(with_repairs(est, flight), flags=estimate_flags(est, flight))
+    for line in est.warnings(repairs=False):
         warnings.warn(line, EstimatorWarning, stacklevel=3)
     return est

@@ -30,6 +30,7 @@ from typing import ClassVar
 import numpy as np
 
 from windahrs.aid import air_vector, drag, gnss_vel, gravity, mag, sideslip, tas
+from windahrs.core import imu_screen
 from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.filters.params import EskfParams
@@ -69,6 +70,7 @@ class Mekf(CompiledEstimator):
     parts: ClassVar[tuple[tuple[str, ...], ...]] = (
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
+        imu_screen.PARAMS,
         process.GYRO_SCALE_PARAMS,
         gravity.PARAMS,
         mag.PARAMS,
@@ -94,10 +96,15 @@ class InsWind(CompiledEstimator):
     kind = "ins-wind"
     requires = frozenset({"imu", "gnss"})
     uses = frozenset({"imu", "mag", "gnss", "air"})
-    default_params = EskfParams(init_mag_bias=1e-6)
+    #: hard-iron states, and [mekf]'s magnetic disturbance checks (VQF's 10 %, 10 deg): a field
+    #: whose norm or dip is off the reference's is not fused (ALFA, tilt / total against
+    #: ArduPilot: 5.25 / 12.68 deg without the checks, 4.44 / 8.91 with them; the simulated
+    #: flights unchanged)
+    default_params = EskfParams(init_mag_bias=1e-6, mag_norm_gate=0.1, mag_dip_gate=float(np.radians(10.0)))
     parts = (
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
+        imu_screen.PARAMS,
         process.GYRO_SCALE_PARAMS,
         process.INS_PARAMS,
         process.WIND_PARAMS,

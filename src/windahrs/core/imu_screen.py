@@ -1,0 +1,182 @@
+"""The IMU screen: a sample the sensor cannot have measured is not propagated.
+
+A single glitched IMU sample (a bus error, an ESD spike, a bit flip) integrates into the
+attitude at once: 40 rad/s for one 5 ms step turns it by 11 deg, and a gated filter that
+trusts the turned state may then reject the measurements that would fix it. Aiding corrects
+the damage only over seconds; not propagating the sample costs one step of the true motion.
+Every IMU sample (finite: NaN ones are skipped before) therefore passes this screen before
+the prediction. It is held, and the last propagated sample is propagated in its place, when:
+
+1. **beyond range:** a gyro axis above ``gyro_range`` or an accelerometer axis above
+   ``accel_range``. The sensor cannot output that (defaults: the ranges of the readers' edge
+   repair, :mod:`windahrs.repair`, which sets such samples to NaN in a log: the widest full
+   scales of autopilot IMUs plus 10 %; the screen catches them in flights built otherwise).
+   A sample *at* its range (a clipped one) is not beyond it and passes.
+2. **a spike:** the change of the angular rate or of the specific force since the last
+   propagated sample exceeds ``imu_spike_gate`` times the root mean square of the recent
+   changes (:data:`TAU_CHANGES` s), or :data:`FLOOR_W` / :data:`FLOOR_F`, whichever is
+   larger. The gyro and the accelerometer are screened apart: the other one's sample is
+   propagated. The next sample decides what the held one was. A spike is a single sample,
+   far from both its neighbours while they agree: when the next sample is back near the
+   last propagated one, the held one is dropped. Otherwise it was motion (a step, an
+   impact's ringing), propagated one sample late rather than lost: its step's excess
+   rotation (and, for the INS, velocity increment) is added to the state then.
+
+The recent changes' mean square is taken over propagated samples, each change counted at
+most at the gate (a spike does not open the gate for the next one). Steps longer than
+:data:`GAP` s are not screened: the motion between such samples was not measured. Every
+held sample is logged (the ``imu`` log: the two changes and the outcome: 1 beyond range,
+2 a spike, 3 motion propagated late), which the Estimate carries in ``alerts["imu"]``.
+PX4 EKF2 and ArduPilot EKF3 have no such screen on a
+single IMU (they compare redundant IMUs, and EKF2 inflates the accelerometer's noise while it
+clips); with one IMU, its own recent changes are the reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from windahrs.core.kalman import _log
+from windahrs.core.layout import (
+    _JIT,
+    C_IV,
+    C_OFF,
+    INN_IMU,
+    L_CNT,
+    R_ACC_RANGE,
+    R_GYRO_RANGE,
+    R_SPIKE_GATE,
+    S_FLAST,
+    S_INIT,
+    S_NHELD,
+    W_IMU,
+    W_NU,
+    X_DTPEND,
+    X_FLAST,
+    X_PEND,
+    X_Q,
+    X_SF2,
+    X_SW2,
+    X_TIMU,
+    X_V,
+    X_WLAST,
+)
+from windahrs.core.quat import _dcm9, _qexp, _qmul, _qnormalize
+
+__all__ = ["FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
+
+#: The fields of EskfParams the screen reads.
+PARAMS = ("gyro_range", "accel_range", "imu_spike_gate")
+#: Time constant of the recent changes' mean square, s: long against a spike, short against
+#: the seconds over which vibration builds up with throttle.
+TAU_CHANGES = 1.0
+#: Smallest gates on a sample-to-sample change, rad/s and m/s^2: a resting or smoothly moving
+#: sensor has recent changes near zero, and a change of 1 rad/s (57 deg/s) or 1 g in one
+#: sample is then no motion a rigid airframe makes between two samples of a >= 50 Hz IMU
+#: (an angular acceleration of >= 50 rad/s^2, a jerk of >= 500 m/s^3), while a smaller
+#: glitch turns the attitude by less than 0.3 deg at 200 Hz.
+FLOOR_W = 1.0
+FLOOR_F = 9.80665
+#: Longer steps are not screened, s (the motion between the samples was not measured).
+GAP = 0.1
+
+
+@njit(**_JIT)
+def _hold(x, work, row, hold_w, hold_f):
+    """The sample to propagate into the scratch row W_IMU: the last propagated angular rate
+    (hold_w) and specific force (hold_f) in place of this sample's; the excess kept in X_PEND."""
+    held = work[W_IMU]
+    for a in range(3):
+        held[a] = x[X_WLAST + a] if hold_w else row[a]
+        held[3 + a] = x[X_FLAST + a] if hold_f else row[3 + a]
+        x[X_PEND + a] = row[a] - held[a]
+        x[X_PEND + 3 + a] = row[3 + a] - held[3 + a]
+    return held
+
+
+@njit(**_JIT)
+def _catch_up(cfg, x, flags, dt, w, f):
+    """The held sample was motion: its step's excess over what was propagated added to the
+    nominal state (w: its rotation; f: for the INS, its velocity increment rotated to NED),
+    and it becomes the last propagated sample."""
+    if w:
+        if flags[S_INIT] == 1:
+            e = _qexp(x[X_PEND] * dt, x[X_PEND + 1] * dt, x[X_PEND + 2] * dt)
+            q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
+            x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+        for a in range(3):
+            x[X_WLAST + a] += x[X_PEND + a]
+    if f:
+        if flags[S_INIT] == 1 and cfg[C_IV] >= 0:
+            c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+            fx, fy, fz = x[X_PEND + 3] * dt, x[X_PEND + 4] * dt, x[X_PEND + 5] * dt
+            x[X_V] += c[0] * fx + c[1] * fy + c[2] * fz
+            x[X_V + 1] += c[3] * fx + c[4] * fy + c[5] * fz
+            x[X_V + 2] += c[6] * fx + c[7] * fy + c[8] * fz
+        for a in range(3):
+            x[X_FLAST + a] += x[X_PEND + 3 + a]
+
+
+@njit(**_JIT)
+def _change2(row, x, i_row, i_x):
+    """|row[i_row:i_row+3] - x[i_x:i_x+3]|^2."""
+    s = 0.0
+    for a in range(3):
+        d = row[i_row + a] - x[i_x + a]
+        s += d * d
+    return s
+
+
+@njit(**_JIT)
+def screen_imu(cfg, prm, x, flags, inn, acc, work, t, row):
+    """The IMU sample to propagate at t s in place of ``row`` = [w_b, f_b] (finite): ``row``
+    itself, or with the last propagated angular rate or specific force in place of a held
+    one (module docstring)."""
+    if flags[S_FLAST] == 0:
+        return row
+    k = prm[R_SPIKE_GATE]
+    dt = t - x[X_TIMU]
+    gw2 = max(FLOOR_W * FLOOR_W, k * k * x[X_SW2])
+    gf2 = max(FLOOR_F * FLOOR_F, k * k * x[X_SF2])
+    dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
+    if flags[S_NHELD] > 0:
+        # the held sample: a spike if this one is back near the last propagated sample,
+        # else motion, caught up now
+        cw, cf = flags[S_NHELD] & 1 != 0 and dw2 > gw2, flags[S_NHELD] & 2 != 0 and df2 > gf2
+        if cw or cf:
+            _catch_up(cfg, x, flags, x[X_DTPEND], cw, cf)
+            inn[cfg[C_OFF + INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
+            dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
+    gr, ar = prm[R_GYRO_RANGE], prm[R_ACC_RANGE]
+    beyond_w, beyond_f = False, False
+    for a in range(3):
+        beyond_w = beyond_w or abs(row[a]) > gr
+        beyond_f = beyond_f or abs(row[3 + a]) > ar
+    hold_w, hold_f = beyond_w, beyond_f
+    if k > 0 and 0 < dt <= GAP:
+        hold_w = hold_w or dw2 > gw2
+        hold_f = hold_f or df2 > gf2
+        # the recent changes' mean square, each change counted at most at the gate
+        g = dt / TAU_CHANGES
+        x[X_SW2] += g * (min(dw2, gw2) - x[X_SW2])
+        x[X_SF2] += g * (min(df2, gf2) - x[X_SF2])
+    if not (hold_w or hold_f):
+        flags[S_NHELD] = 0
+        return row
+    nu = work[W_NU]
+    nu[0], nu[1], nu[2] = math.sqrt(dw2), math.sqrt(df2), 0.0
+    reason = 1.0 if (beyond_w or beyond_f) else 2.0  # (in the NIS column; 3: set when caught up)
+    _log(cfg, flags, inn, acc, nu, np.int64(INN_IMU), t, np.int64(2), reason, np.bool_(False))
+    held = work[W_IMU]
+    for a in range(3):
+        held[a] = x[X_WLAST + a] if hold_w else row[a]
+        held[3 + a] = x[X_FLAST + a] if hold_f else row[3 + a]
+        # the excess to catch up if the next sample says it was motion (never one beyond range)
+        x[X_PEND + a] = 0.0 if beyond_w else row[a] - held[a]
+        x[X_PEND + 3 + a] = 0.0 if beyond_f else row[3 + a] - held[3 + a]
+    x[X_DTPEND] = dt
+    flags[S_NHELD] = (1 if hold_w else 0) + (2 if hold_f else 0)
+    return held
