@@ -59,7 +59,7 @@ def test_a_single_gyro_spike_is_held_and_costs_nothing(fixedwing: Flight, spec: 
     w[k, 1] += size
     faulty = _with_imu(fixedwing, w, fixedwing.imu.f_b)
     clean, est = _quiet_run(spec, fixedwing), _quiet_run(spec, faulty)
-    assert abs(_total_deg(est, faulty) / _total_deg(clean, fixedwing) - 1.0) < 0.01
+    assert abs(_total_deg(est, faulty) / _total_deg(clean, fixedwing) - 1.0) < 0.05  # (issue 13: 10 %)
     held = est.alerts["imu"]
     assert held.shape == (1, 4) and held[0, 0] == fixedwing.imu.t[k]
     assert held[0, 3] == (1 if size > GYRO_RANGE else 2)  # beyond the range, or a spike

@@ -27,12 +27,13 @@ magnetic field whose norm is off the reference's by more than :data:`MAG_NORM_SH
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from windahrs.core.imu_screen import CLIP_F, CLIP_W
+from windahrs.core.layout import SENSOR_STREAMS, SENSORS
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
 
@@ -74,8 +75,8 @@ STUCK_SAMPLES = 5
 #: full scales autopilot IMUs are set to (125 deg/s on the BMI088, 250 on the MPU-6000/9250;
 #: 2 g), below which a slow, quantised axis may repeat itself (BROAD's does at 0.05 rad/s).
 CLIP_SAMPLES = 3
-CLIP_MIN_W = 125.0 * math.pi / 180.0
-CLIP_MIN_F = 2.0 * 9.80665
+CLIP_MIN_W = CLIP_W
+CLIP_MIN_F = CLIP_F
 #: The magnetometer's field is disturbed when its norm is off the reference's by more than
 #: this share (the site's field, else the flight's median norm): VQF's magNormTh, 0.1.
 MAG_NORM_SHARE = 0.1
@@ -106,13 +107,15 @@ def absent_after(t: F64) -> float:
     return max(ABSENT_PERIODS * period, ABSENT_MIN_S)
 
 
-def absent_mask(t_stream: F64, ok: NDArray[np.bool_], t: F64) -> NDArray[np.bool_]:
-    """At each of t: no finite sample of the stream in the last absence time (a gap, after
-    the last sample, or before a first sample that came late)."""
-    ts = t_stream[ok]
+def absent_mask(t_stream: F64, ok: NDArray[np.bool_], t: F64, lim: float | None = None) -> NDArray[np.bool_]:
+    """At each of t: no finite sample of the stream in the last absence time (``lim``, default
+    :func:`absent_after`; a gap, after the last sample, or before a first sample that came late)."""
+    ts = t_stream if ok.all() else t_stream[ok]
     if len(ts) == 0:
         return np.ones(len(t), dtype=bool)
-    lim = absent_after(t_stream)
+    lim = absent_after(t_stream) if lim is None else lim
+    if len(t) and ts[0] - t[0] <= lim and t[-1] - ts[-1] <= lim and (len(ts) < 2 or np.diff(ts).max() <= lim):
+        return np.zeros(len(t), dtype=bool)  # (no gap anywhere: the common case, quickly)
     i = np.searchsorted(ts, t, side="right")
     prev = np.where(i > 0, ts[np.maximum(i - 1, 0)], -np.inf)
     # (a stream whose first sample comes within the time of the flight's start is not absent before it)
@@ -167,7 +170,9 @@ def _repeats(v: F64) -> NDArray[np.bool_]:
     """Sample k equals sample k-1 in every column (False for the first)."""
     v = v.reshape(len(v), -1)
     same = np.zeros(len(v), dtype=bool)
-    same[1:] = np.all(v[1:] == v[:-1], axis=1) & np.isfinite(v[1:]).all(axis=1)
+    first = v[1:, 0] == v[:-1, 0]
+    if first.any():  # (a live sensor rarely repeats even one column: checked first, quickly)
+        same[1:] = first & np.all(v[1:] == v[:-1], axis=1) & np.isfinite(v[1:]).all(axis=1)
     return same
 
 
@@ -180,10 +185,13 @@ def stream_flags(flight: Flight) -> dict[str, tuple[F64, NDArray[np.bool_]]]:
     clipped = np.zeros(len(imu.t), dtype=bool)
     for v, lo in ((imu.w_b, CLIP_MIN_W), (imu.f_b, CLIP_MIN_F)):
         stuck |= _runs(_repeats(v), imu.t, STUCK_SAMPLES, STUCK_S)
+        big = np.abs(v) >= lo
         for a in range(3):
+            if not big[:, a].any():
+                continue
             col = np.abs(v[:, a])
             same = np.zeros(len(col), dtype=bool)
-            same[1:] = (col[1:] == col[:-1]) & (col[1:] >= lo)
+            same[1:] = (col[1:] == col[:-1]) & big[1:, a]
             clipped |= _runs(same, imu.t, CLIP_SAMPLES, 0.0)
     out["imu_stuck"], out["imu_clipped"] = (imu.t, stuck), (imu.t, clipped)
     if flight.mag is not None:
@@ -217,21 +225,23 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         put("imu_held", _points(held[held[:, 3] < 3, 0], t))
         put("imu_late", _points(held[held[:, 3] == 3, 0], t))
     absent: dict[str, NDArray[np.bool_]] = {}
+    lims: dict[str, float] = {}
     for stream in ("imu", "mag", "gnss", "air"):
         rows = _stream_rows(flight, stream)
         if rows is not None:
-            absent[stream] = absent_mask(rows[0], rows[1], t)
+            lims[stream] = lim = absent_after(rows[0])
+            absent[stream] = absent_mask(rows[0], rows[1], t, lim)
             if stream == "imu":  # the estimate has no rows in a gap: its first row after says it
-                absent[stream][1:] |= np.diff(t) > absent_after(rows[0])
+                absent[stream][1:] |= np.diff(t) > lim
             put(f"{stream}_absent", absent[stream])
     for flag, keys in _REJECTED.items():
         for key in keys:
             inn = est.innovations.get(key)
-            if inn is None or len(inn.t) == 0:
+            if inn is None or len(inn.t) == 0 or inn.accepted.all():
                 continue
             # a disturbance check logs NaN: that is a disturbance, not the gate
             nan = ~np.isfinite(inn.nu).all(axis=1) if inn.nu.ndim == 2 else ~np.isfinite(inn.nu)
-            hold = absent_after(inn.t)
+            hold = lims.get(SENSOR_STREAMS[SENSORS.index(key)]) or absent_after(inn.t)
             put(flag, _holding(inn.t, ~inn.accepted & ~nan, t, hold))
             if key in ("mag", "accel"):
                 put(f"{key}_disturbed", _holding(inn.t, ~inn.accepted & nan, t, hold))
@@ -243,7 +253,7 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         put("fallback", absent.get("gnss", np.zeros(len(t), dtype=bool)))
     for name, (ts, on) in stream_flags(flight).items():  # onto the estimate's samples
         if on.any():
-            put(name, _holding(ts, on, t, absent_after(ts)))
+            put(name, _holding(ts, on, t, lims.get(name.split("_")[0]) or absent_after(ts)))
     if est.cov is not None and len(t):  # (the covariance is NaN until initialisation)
         ok = np.isfinite(est.cov[:, 0, 0])
         first = int(est.cov_rows[np.argmax(ok)]) if ok.any() else len(t)
