@@ -63,7 +63,7 @@ def test_simulate_other_vehicles(
     [
         (["--duration", "-3"], "duration: expected > 0 s, found -3.0"),
         (["--wind", "-1"], "wind: expected W20 >= 0 m/s, found -1.0"),
-        (["--seed", "-1"], "--seed: expected an integer >= 0, found -1"),
+        (["--seed", "-1"], "--seed: expected an integer from 0 to 2**63 - 1, found -1"),
         (["--altitude", "1"], "altitude: expected 2 to 3000 m, found 1.0"),
     ],
 )
@@ -71,7 +71,11 @@ def test_simulate_bad_input_writes_nothing(
     args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "x.h5"
-    assert main(["simulate", *args, "--out", str(out)]) == 2
+    try:
+        rc = main(["simulate", *args, "--out", str(out)])
+    except SystemExit as exc:  # refused by argparse
+        rc = exc.code
+    assert rc == 2
     assert message in capsys.readouterr().err
     assert os.listdir(tmp_path) == []
 
@@ -241,5 +245,7 @@ def test_experiment_command(capsys: pytest.CaptureFixture[str]) -> None:
     assert "\r" not in std.err
     lines = [ln for ln in std.err.splitlines() if ln.startswith("experiment:")]
     assert len(lines) >= 2 and "0/2" in lines[0] and "100%" in lines[-1] and "2/2" in lines[-1]
-    assert main(["experiment", "--runs", "0"]) == 2
-    assert "--runs: expected an integer >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        main(["experiment", "--runs", "0"])
+    assert info.value.code == 2
+    assert "--runs: expected an integer from 1 to 2**63 - 1, found 0" in capsys.readouterr().err

@@ -1,18 +1,36 @@
 """The ``windahrs`` command: thin wrappers over the library's pure functions.
 
-Each subcommand parses its arguments, calls one library function and prints. Errors in
-the user's input end the command with exit status 2 and a one-line message naming the
-argument or field; nothing is written on failure.
+Each subcommand parses its arguments, calls one library function and prints. Every
+failure ends with one line on stderr, ``windahrs COMMAND: error: ...``, naming the
+argument, field or path, never a traceback, and with the exit status:
+
+- 2: bad input (an argument, a parameter file, a flight file or log, an output path that
+  cannot be written), all checked before the work starts where they can be;
+- 1: any other failure (the disk filling up while writing, out of memory, a bug);
+- 130: interrupted by Ctrl-C (SIGINT), the shell's convention (128 + 2).
+
+Outputs are checked to be writable before the work starts; on any failure or interrupt the
+files and folders the command created are removed (:class:`_Outputs`). A command declares
+each output first thing: ``args.outputs.file(args.out, "--out")`` for a file,
+``args.outputs.folder(args.out, "--out")`` for a folder (created there), then writes through
+the atomic writers of :mod:`windahrs.store`. Paths take ``type=_path`` (``_file_path`` for an
+output file), numbers ``_number`` (finite), seeds ``_seed`` and run counts ``_count``; rows of
+``tests/test_cli_hardening.py`` check each command's bad input.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+import shutil
+import signal
 import sys
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from types import FrameType
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 from tqdm import tqdm
@@ -28,6 +46,149 @@ __all__ = ["main"]
 
 class UsageError(Exception):
     """Bad command-line input; printed as ``windahrs: error: ...`` with exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (argparse prints the usage first): the message,
+    then where to read more."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see '{self.prog} --help')\n")
+
+
+#: Largest seed, run count or run index: seeds are stored as 64-bit signed integers (HDF5
+#: attributes, JSON readers), and run r of an experiment has seed ``--seed + r``.
+MAX_SEED = 2**63 - 1
+
+
+def _number(text: str) -> float:
+    """A finite number (argparse type): nan and inf are refused."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, found {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, found {text!r}")
+    return value
+
+
+def _integer(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, found {text!r}") from None
+    if not low <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected an integer from {low} to 2**63 - 1, found {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    """A seed, 0 to 2**63 - 1 (argparse type)."""
+    return _integer(text, 0)
+
+
+def _count(text: str) -> int:
+    """A number of runs, 1 to 2**63 - 1 (argparse type)."""
+    return _integer(text, 1)
+
+
+def _path(text: str) -> Path:
+    """A path (argparse type): the empty string is refused (``Path("")`` would be ".")."""
+    if not text:
+        raise argparse.ArgumentTypeError("expected a path, found ''")
+    return Path(text)
+
+
+def _file_path(text: str) -> Path:
+    """An output file (argparse type): a path ending in a separator names a directory."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"expected a file name, found the directory name {text!r}")
+    return _path(text)
+
+
+def _text_path(text: str) -> str:
+    """A path kept as typed (argparse type; the empty string refused), for an option that
+    is a file or a directory by another option: ``Path`` would drop a trailing "/"."""
+    _path(text)
+    return text
+
+
+class _Outputs:
+    """The files and folders a command writes: each checked to be writable before the work
+    starts, and removed when the command fails or is interrupted (files that did not
+    exist before; a folder it created, with what is in it; in a folder that existed, the
+    entries that were not there before)."""
+
+    def __init__(self) -> None:
+        self._files: list[Path] = []
+        self._folders: list[tuple[Path, set[str] | None]] = []
+
+    def file(self, path: Path, option: str) -> Path:
+        from windahrs.store import OutputError, check_writable
+
+        try:
+            check_writable(path)
+        except OutputError as exc:
+            raise UsageError(f"{option}: {exc}") from None
+        if not path.exists():
+            self._files.append(path)
+        return path
+
+    def folder(self, path: Path, option: str) -> Path:
+        from windahrs.store import OutputError, check_writable
+
+        if path.exists() and not path.is_dir():
+            raise UsageError(f"{option}: {path} is a file, expected a directory")
+        if path.is_dir():
+            before: set[str] | None = set(os.listdir(path))
+            top = path
+        else:
+            missing = [path, *(a for a in path.parents if not a.exists())]
+            top = missing[-1]
+            if not top.parent.is_dir():
+                raise UsageError(f"{option}: {path}: {top.parent} is not a directory")
+            before = None
+        try:
+            check_writable((path if before is not None else top.parent) / ".windahrs-probe")
+        except OutputError as exc:
+            raise UsageError(f"{option}: {path}: {str(exc).split(': ', 1)[-1]}") from None
+        if before is None:
+            try:
+                path.mkdir(parents=True)
+            except OSError as exc:
+                raise UsageError(f"{option}: {path}: cannot create the directory ({exc.strerror})") from None
+        self._folders.append((top, before))
+        return path
+
+    def new_folder(self, path: Path, option: str) -> Path:
+        """A folder the command's writer creates itself, whole or not at all (it must not
+        exist yet): its parent checked, the folder removed on failure."""
+        from windahrs.store import OutputError, check_writable
+
+        if path.exists():
+            raise UsageError(f"{option}: expected a directory that does not exist yet, found {path}")
+        try:
+            check_writable(path)
+        except OutputError as exc:
+            raise UsageError(f"{option}: {exc}") from None
+        self._folders.append((path, None))
+        return path
+
+    def discard(self) -> None:
+        """Remove what the command wrote (called on failure and on interrupt)."""
+        for f in self._files:
+            if f.is_file() or f.is_symlink():
+                f.unlink(missing_ok=True)
+        for folder, before in self._folders:
+            if before is None:
+                shutil.rmtree(folder, ignore_errors=True)
+                continue
+            for name in set(os.listdir(folder)) - before:
+                entry = folder / name
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
 
 
 #: Seconds between progress lines when stderr is not a terminal (CI logs, nohup, a pipe).
@@ -57,15 +218,19 @@ def _runs_bar(total: int, desc: str) -> tqdm:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from windahrs.sim.scenario import make_scenario, simulate
+    from windahrs.sim.scenario import check_simulation_size, make_scenario, simulate
     from windahrs.store import save_flight
 
-    if args.seed < 0:
-        raise UsageError(f"--seed: expected an integer >= 0, found {args.seed}")
+    if args.csv:
+        args.out = args.outputs.new_folder(_path(args.out), "--out")
+    else:
+        try:
+            args.out = args.outputs.file(_file_path(args.out), "--out")
+        except argparse.ArgumentTypeError as exc:
+            raise UsageError(f"--out: {exc}") from None
     scenario = make_scenario(args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude)
+    check_simulation_size(scenario)
     faults = _faults(args.fault)
-    if args.csv and args.out.exists():
-        raise UsageError(f"--out: expected a directory that does not exist yet (--csv), found {args.out}")
     # Shown on a terminal only (tqdm's disable=None); stages, as the work is vectorised.
     with tqdm(total=2, desc=f"simulate {args.vehicle}", unit="stage", disable=None, file=sys.stderr) as bar:
         flight = simulate(scenario, np.random.default_rng(args.seed))
@@ -96,32 +261,16 @@ def _faults(specs: list[str] | None) -> list[Fault]:
     return [parse_fault(s) for s in specs or ()]
 
 
-def _out_dir(path: Path, option: str = "--out") -> None:
-    """Refuse an output directory that cannot be made or written, before any work."""
-    import os
-
-    if path.exists() and not path.is_dir():
-        raise UsageError(f"{option}: expected a directory, found the file {path}")
-    parent = path if path.is_dir() else path.parent
-    if not parent.is_dir():
-        raise UsageError(f"{option}: expected a directory in an existing one, found no directory {parent}")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise UsageError(f"{option}: expected a writable directory, found {parent} not writable")
-
-
 def _cmd_faults(args: argparse.Namespace) -> int:
     import json
-    import shutil
 
     from windahrs.experiments.faults import check_cases, default_cases, matrix_markdown, run_fault_matrix
     from windahrs.filters.registry import make_estimator
-    from windahrs.store import atomic_path
+    from windahrs.store import write_bytes
 
     specs = _specs(args.filters)
     for spec in specs:  # a bad name or field before any work
         make_estimator(spec)
-    if args.seed < 0:
-        raise UsageError(f"--seed: expected an integer >= 0, found {args.seed}")
     if not (np.isfinite(args.wind) and 0 <= args.wind <= 30):
         raise UsageError(f"--wind: expected a W20 between 0 and 30 m/s, found {args.wind}")
     if not (np.isfinite(args.duration) and 0 < args.duration <= 3600):
@@ -129,7 +278,7 @@ def _cmd_faults(args: argparse.Namespace) -> int:
     cases = default_cases(args.duration / 3)
     if args.faults is not None:
         known = {c.name: c for c in cases}
-        wanted = _specs(args.faults)
+        wanted = _specs(args.faults, "--faults", "fault case")
         unknown = [w for w in wanted if w not in known]
         if unknown:
             raise UsageError(f"--faults: expected names among {', '.join(known)}, found {', '.join(unknown)}")
@@ -138,7 +287,7 @@ def _cmd_faults(args: argparse.Namespace) -> int:
         check_cases(cases, args.duration)
     except ValueError as exc:
         raise UsageError(f"--{exc}") from None
-    _out_dir(args.out)
+    args.outputs.folder(args.out, "--out")  # made here; removed on failure (with what is in it)
     with _runs_bar(len(specs) * (len(cases) + 1), f"faults {args.vehicle}") as bar:
 
         def step(done: int, total: int, label: str) -> None:
@@ -147,18 +296,9 @@ def _cmd_faults(args: argparse.Namespace) -> int:
 
         res = run_fault_matrix(args.vehicle, specs, wind=args.wind, duration=args.duration, seed=args.seed,
                                cases=cases, progress=step)
-    made = not args.out.exists()
-    args.out.mkdir(exist_ok=True)
-    try:
-        rows = [r.as_dict() for r in res.rows]
-        with atomic_path(args.out / "faults.json") as tmp:
-            tmp.write_text(json.dumps(rows, indent=1) + "\n")
-        with atomic_path(args.out / "faults.md") as tmp:
-            tmp.write_text(matrix_markdown([res]))
-    except BaseException:
-        if made:
-            shutil.rmtree(args.out, ignore_errors=True)
-        raise
+    rows = [r.as_dict() for r in res.rows]
+    write_bytes(args.out / "faults.json", (json.dumps(rows, indent=1) + "\n").encode("utf-8"))
+    write_bytes(args.out / "faults.md", matrix_markdown([res]).encode("utf-8"))
     for note in res.not_run:
         _note(f"not run: {note}")
     n = len(res.rows)
@@ -185,11 +325,16 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     import json
 
     from windahrs.experiments.montecarlo import run_wind_experiment
+    from windahrs.filters.registry import make_estimator
     from windahrs.metrics import WIND_FROM_S
+    from windahrs.sim.scenario import check_simulation_size, make_scenario
 
-    specs = [s.strip() for s in args.filters.split(",") if s.strip()]
-    if args.runs < 1:
-        raise UsageError(f"--runs: expected an integer >= 1, found {args.runs}")
+    specs = _specs(args.filters)
+    if args.seed + args.runs - 1 > MAX_SEED:
+        raise UsageError(f"--runs: the seeds {args.seed}..{args.seed + args.runs - 1} go past 2**63 - 1")
+    for spec in specs:  # fail on a bad name or field before any work
+        make_estimator(spec)
+    check_simulation_size(make_scenario(args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude))
     with _runs_bar(args.runs * len(specs), "experiment") as bar:
 
         def step(done: int, total: int) -> None:
@@ -243,17 +388,26 @@ def reproduce_nees_runs(runs: int, quick: bool, nees_runs: int | None) -> int:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     import time
 
-    from windahrs.experiments.reproduce import NEES_CHECK_LABEL, default_cases, progress_total, run_reproduction
+    from windahrs.experiments.reproduce import (
+        NEES_CHECK_LABEL,
+        check_reproduction_size,
+        default_cases,
+        progress_total,
+        run_reproduction,
+    )
     from windahrs.filters.registry import names
     from windahrs.report.reproduction import write_reproduction
+    from windahrs.sim.scenario import MIN_DURATION_S
 
     runs = 5 if args.quick and args.runs is None else (args.runs if args.runs is not None else 50)
     if runs < 1:
         raise UsageError(f"--runs: expected an integer >= 1, found {runs}")
-    if args.duration <= 0:
-        raise UsageError(f"--duration: expected > 0 s, found {args.duration}")
+    if args.duration < MIN_DURATION_S:
+        raise UsageError(f"--duration: expected at least {MIN_DURATION_S:g} s, found {args.duration}")
     nees_runs = reproduce_nees_runs(runs, args.quick, args.nees_runs)
     cases = default_cases(names())
+    check_reproduction_size(runs, args.duration, len(cases))
+    args.outputs.folder(args.out, "--out")
     checked = sum(c.bound is not None for c in cases)
     t0 = time.perf_counter()
     with _runs_bar(progress_total(cases, runs, nees_runs), "reproduce") as bar:
@@ -287,6 +441,8 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
     from windahrs.filters.registry import make_estimator
 
     specs = _specs(args.filters)
+    if args.out is not None:
+        args.outputs.file(args.out, "--out")
     for spec in specs:  # fail on a bad name or field before walking the folder
         make_estimator(spec)
     found = discover_flights(args.dir)
@@ -305,10 +461,9 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
     text = json.dumps(res.as_json(), indent=1)
     table = res.table()
     if args.out is not None:
-        from windahrs.store import atomic_path
+        from windahrs.store import write_bytes
 
-        with atomic_path(args.out) as tmp:
-            tmp.write_text(text if args.out.suffix == ".json" else table)
+        write_bytes(args.out, (text if args.out.suffix == ".json" else table).encode("utf-8"))
     print(text if args.json else table)
     return 0
 
@@ -341,6 +496,8 @@ def _read(path: Path, *, say_repairs: bool = True) -> Flight:
     from windahrs.io import read_flight
     from windahrs.repair import RepairWarning, repairs_text
 
+    if path.exists() and not (path.is_file() or path.is_dir()):  # reading a FIFO would wait forever
+        raise UsageError(f"{path}: not a regular file or directory (a device, FIFO or socket)")
     flight = read_flight(path)
     warning = imu_rate_warning(flight.imu.t)
     if warning:
@@ -367,6 +524,10 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from windahrs.filters.registry import make_estimator
     from windahrs.metrics import reference_of, score
 
+    if args.out is not None:
+        if args.out.exists() and args.file.exists() and args.out.resolve() == args.file.resolve():
+            raise UsageError(f"--out: {args.out} is the input FILE; give another name")
+        args.outputs.file(args.out, "--out")
     est = make_estimator(args.filter, args.params)
     flight = _read(args.file)
     result = est.run(flight)
@@ -393,10 +554,10 @@ def _bar(total: int, desc: str) -> tqdm:
     return tqdm(total=total, desc=desc, disable=None, file=sys.stderr)
 
 
-def _specs(text: str) -> list[str]:
+def _specs(text: str, option: str = "--filters", what: str = "filter") -> list[str]:
     specs = [s.strip() for s in text.split(",") if s.strip()]
     if not specs:
-        raise UsageError("--filters: expected a comma-separated list of filter names, found none")
+        raise UsageError(f"{option}: expected a comma-separated list of {what} names, found none")
     return specs
 
 
@@ -447,8 +608,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     explicit = args.filters is not None
     specs = _specs(args.filters) if explicit else None
-    if args.out.is_dir():
-        raise UsageError(f"--out: expected a file name, found the directory {args.out}")
+    args.outputs.file(args.out, "--out")
     selection = select_estimators(specs)  # fail on a bad name or field before any work
     flight = _read(args.file)
     with _bar(len(selection.estimators), "report") as bar:
@@ -495,7 +655,7 @@ BENCH_ALIGN_HELP = (
 def _parser() -> argparse.ArgumentParser:
     from windahrs.experiments.compare import DEFAULT_REPORT_FILTERS
 
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="windahrs",
         description="UAV attitude estimation in wind: simulate flights, inspect flight files.",
     )
@@ -520,7 +680,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--wind",
-        type=float,
+        type=_number,
         default=0.0,
         metavar="W20",
         help="mean wind at 20 ft in m/s, which also sets the turbulence intensity "
@@ -528,19 +688,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--altitude",
-        type=float,
+        type=_number,
         default=None,
         metavar="H",
         help="height above ground in m (default: 50 fixed wing, 20 quadrotor and paper)",
     )
     s.add_argument(
         "--duration",
-        type=float,
+        type=_number,
         default=None,
         metavar="S",
         help="seconds (default: 120; 10 for paper)",
     )
-    s.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
+    s.add_argument("--seed", type=_seed, default=0, metavar="N", help="random seed (default 0)")
     s.add_argument("--fault", action="append", default=None, metavar="KIND:field=value:...",
                    help="inject a sensor fault after the simulation (repeatable; the truth is untouched), e.g. "
                    "gyro-spike:start=30:magnitude=40 or gnss-outage:start=20:duration=10; kinds and fields in "
@@ -550,7 +710,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="write --out as a generic-CSV directory (docs/csv-format.md, the truth as the reference) "
                    "instead of HDF5, keeping what a Flight refuses (duplicated or out-of-order stamps, Inf) for the "
                    "readers' edge repair")
-    s.add_argument("--out", type=Path, required=True, metavar="FILE.h5", help="output file")
+    # a file, or with --csv a directory: the text is kept (a trailing "/" names a directory)
+    s.add_argument("--out", type=_text_path, required=True, metavar="FILE.h5", help="output file")
     s.set_defaults(func=_cmd_simulate)
 
     ft = sub.add_parser(
@@ -568,13 +729,13 @@ def _parser() -> argparse.ArgumentParser:
                     "lacks is listed as not run)")
     ft.add_argument("--vehicle", choices=("fixedwing", "quadrotor"), default="fixedwing",
                     help="fixedwing (pitot and vanes) or quadrotor (no air data). Default fixedwing")
-    ft.add_argument("--wind", type=float, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
-    ft.add_argument("--duration", type=float, default=90.0, metavar="S",
+    ft.add_argument("--wind", type=_number, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
+    ft.add_argument("--duration", type=_number, default=90.0, metavar="S",
                     help="flight length in s (default 90); the faults start at a third of it")
-    ft.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the flight and the faults (default 0)")
+    ft.add_argument("--seed", type=_seed, default=0, metavar="N", help="seed of the flight and the faults (default 0)")
     ft.add_argument("--faults", default=None, metavar="NAME,...",
                     help="only these cases of the matrix (default all; names as in faults.md, e.g. gyro-spike)")
-    ft.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory (made if missing)")
+    ft.add_argument("--out", type=_path, required=True, metavar="DIR", help="output directory (made if missing)")
     ft.set_defaults(func=_cmd_faults)
 
     i = sub.add_parser(
@@ -586,7 +747,7 @@ def _parser() -> argparse.ArgumentParser:
         "kind), the site, what the reader repaired (samples out of order, repeated stamps, infinite values and "
         "samples beyond the sensor's range: a count per stream and kind) and the reader's notes (meta).",
     )
-    i.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
+    i.add_argument("file", type=_path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
     i.set_defaults(func=_cmd_info)
 
     e = sub.add_parser(
@@ -595,18 +756,18 @@ def _parser() -> argparse.ArgumentParser:
         description="Run one estimator (see 'windahrs filters') over a flight file or log and write "
         "its Estimate (attitude, bias, wind, covariance, innovations) as HDF5.",
     )
-    e.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file or a log")
+    e.add_argument("file", type=_path, metavar="FILE", help="a windahrs flight file or a log")
     e.add_argument("--filter", default="auto", metavar="NAME",
                    help="estimator spec, e.g. ins-wind or mekf:mag_mode=heading (default: auto, which runs ins-wind "
                    "when the flight has GNSS velocity, else mekf, and prints which)")
     e.add_argument(
         "--params",
-        type=Path,
+        type=_path,
         default=None,
         metavar="FILE.toml",
         help="parameters: [windahrs] fields, or [px4] / [ardupilot] parameter names",
     )
-    e.add_argument("--out", type=Path, default=None, metavar="EST.h5", help="write the Estimate here")
+    e.add_argument("--out", type=_file_path, default=None, metavar="EST.h5", help="write the Estimate here")
     e.set_defaults(func=_cmd_estimate)
 
     c = sub.add_parser(
@@ -615,7 +776,7 @@ def _parser() -> argparse.ArgumentParser:
         description="RMSE per axis from sample 50 and over the second half, tilt and total, per estimator, "
         "against the flight's truth (simulation) or reference (mocap, autopilot).",
     )
-    c.add_argument("file", type=Path, metavar="FILE")
+    c.add_argument("file", type=_path, metavar="FILE")
     c.add_argument(
         "--filters", default=None, metavar="A,B,...",
         help=f"comma-separated estimator specs (default: {','.join(DEFAULT_REPORT_FILTERS)}, leaving out those the "
@@ -634,14 +795,14 @@ def _parser() -> argparse.ArgumentParser:
         "(rates, gaps, NaN samples, saturation). A filter that cannot run (e.g. a missing sensor) is listed in "
         "the report and on stderr; the command fails only when no filter runs.",
     )
-    rp.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file or a log")
+    rp.add_argument("file", type=_path, metavar="FILE", help="a windahrs flight file or a log")
     rp.add_argument(
         "--filters", default=None, metavar="A,B,...",
         help=f"estimator specs (default: {','.join(DEFAULT_REPORT_FILTERS)}, leaving out those the flight lacks a "
         "sensor for or that are not installed)",
     )
     rp.add_argument("--align", action="store_true", help=ALIGN_HELP)
-    rp.add_argument("--out", type=Path, required=True, metavar="REPORT.html", help="the HTML file to write")
+    rp.add_argument("--out", type=_file_path, required=True, metavar="REPORT.html", help="the HTML file to write")
     rp.set_defaults(func=_cmd_report)
 
     x = sub.add_parser(
@@ -653,11 +814,11 @@ def _parser() -> argparse.ArgumentParser:
         "(e.g. paper:wind=mean).",
     )
     x.add_argument("--vehicle", choices=("fixedwing", "quadrotor", "paper"), default="fixedwing")
-    x.add_argument("--wind", type=float, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
-    x.add_argument("--duration", type=float, default=120.0, metavar="S", help="seconds (default 120)")
-    x.add_argument("--altitude", type=float, default=None, metavar="H", help="m (vehicle default)")
-    x.add_argument("--runs", type=int, default=5, metavar="N", help="flights (default 5)")
-    x.add_argument("--seed", type=int, default=0, metavar="N", help="first seed (default 0)")
+    x.add_argument("--wind", type=_number, default=8.0, metavar="W20", help="W20 in m/s (default 8)")
+    x.add_argument("--duration", type=_number, default=120.0, metavar="S", help="seconds (default 120)")
+    x.add_argument("--altitude", type=_number, default=None, metavar="H", help="m (vehicle default)")
+    x.add_argument("--runs", type=_count, default=5, metavar="N", help="flights (default 5)")
+    x.add_argument("--seed", type=_seed, default=0, metavar="N", help="first seed (default 0)")
     x.add_argument("--filters", default=DEFAULT_EXPERIMENT_FILTERS, metavar="A,B,...",
                    help=f"estimator specs (default: {DEFAULT_EXPERIMENT_FILTERS})")
     x.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -671,14 +832,14 @@ def _parser() -> argparse.ArgumentParser:
         "protocol of SPEC 7.3, then the modern estimators and the outside baselines on the same flights. "
         "Writes DIR/results.json, DIR/results.md, PNG figures and DIR/report.html (self-contained).",
     )
-    r.add_argument("--runs", type=int, default=None, metavar="N", help="Monte Carlo runs per case (default 50)")
+    r.add_argument("--runs", type=_count, default=None, metavar="N", help="Monte Carlo runs per case (default 50)")
     r.add_argument("--quick", action="store_true", help="5 runs per case (unless --runs is given)")
-    r.add_argument("--nees-runs", type=int, default=None, metavar="M",
+    r.add_argument("--nees-runs", type=_count, default=None, metavar="M",
                    help=f"runs of the physically tuned filters' NEES check, at least the runs per case (default "
                    f"{NEES_CHECK_BLOCKS} x the runs per case, 400 without --runs; with --quick, the runs per case: "
                    "no extra flights); the check is also reported per block of the runs per case")
-    r.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds per run (default 20)")
-    r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    r.add_argument("--duration", type=_number, default=20.0, metavar="S", help="seconds per run (default 20)")
+    r.add_argument("--out", type=_path, required=True, metavar="DIR", help="output directory")
     r.set_defaults(func=_cmd_reproduce)
 
     b = sub.add_parser(
@@ -692,13 +853,13 @@ def _parser() -> argparse.ArgumentParser:
         "magnetometer), and the median over recordings. A file that cannot be read is listed as skipped with the "
         "reason; a filter that cannot run on a recording (e.g. ins-wind without GNSS) fails only that row.",
     )
-    b.add_argument("dir", type=Path, metavar="DIR", help="a folder of recordings (or one recording)")
+    b.add_argument("dir", type=_path, metavar="DIR", help="a folder of recordings (or one recording)")
     b.add_argument("--filters", default="auto,mekf,ekf7,vqf,vqf-offline,madgwick,mahony,imufusion",
                    metavar="A,B,...", help="estimator specs (a filter that cannot run on a recording fails that "
                    "row only)")
     b.add_argument("--align", action="store_true", help=BENCH_ALIGN_HELP)
     b.add_argument("--json", action="store_true", help="print the JSON result instead of the table")
-    b.add_argument("--out", type=Path, default=None, metavar="FILE", help="also write .json or a text table")
+    b.add_argument("--out", type=_file_path, default=None, metavar="FILE", help="also write .json or a text table")
     b.set_defaults(func=_cmd_bench_data)
 
     fl = sub.add_parser("filters", help="list the estimators", description="List the registered estimators.")
@@ -715,34 +876,99 @@ def _one_line_warning(command: str) -> Callable[..., None]:
     return show
 
 
+#: The options whose values the library checks under their own names (``duration: ...``):
+#: its message then names the option as the user typed it (``--duration: ...``).
+_LIBRARY_NAMES = ("duration", "wind", "altitude", "seed", "runs", "nees_runs", "vehicle", "filter", "filters")
+
+
+def _one_line(exc: BaseException, args: argparse.Namespace) -> str:
+    """The message of ``exc`` on one line, the library's field named as the CLI option."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    name, sep, rest = text.partition(": ")
+    if sep and name in _LIBRARY_NAMES and hasattr(args, name):
+        text = f"--{name.replace('_', '-')}: {rest}"
+    return text
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit status."""
+    """Entry point; returns the exit status (0 done, 2 bad input, 1 other failure, 130
+    interrupted; see the module docstring). Set WINDAHRS_DEBUG=1 for the traceback of an
+    unexpected error."""
     from windahrs.estimate import EstimatorWarning
-    from windahrs.flight import FlightError
     from windahrs.repair import RepairWarning
-    from windahrs.store import StoreError
+    from windahrs.store import OutputError
 
     parser = _parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
+    args.outputs = outputs = _Outputs()
+    interrupted = False
+
+    def on_sigint(signum: int, frame: FrameType | None) -> None:
+        nonlocal interrupted
+        interrupted = True
+        raise KeyboardInterrupt
+
+    def fail(status: int, text: str) -> int:
+        outputs.discard()
+        print(f"windahrs {args.command}: {text}", file=sys.stderr)
+        return status
+
+    def unraisable(u: sys.UnraisableHookArgs) -> None:
+        # A Ctrl-C that lands in a finaliser or weakref callback (numba's and llvmlite's
+        # __del__, h5py's dealloc) cannot propagate: Python would print "Exception ignored"
+        # with a traceback and go on. Raise it again in the main flow instead.
+        if u.exc_type is not None and issubclass(u.exc_type, KeyboardInterrupt):
+            if retry is not None:  # 10 ms on, outside this hook and the finaliser
+                signal.setitimer(signal.ITIMER_REAL, 0.01)
+            return
+        print(f"windahrs {args.command}: warning: ignored in {u.object!r}: {u.exc_type.__name__}: "
+              f"{' '.join(str(u.exc_value).split())}", file=sys.stderr)
+
+    # Python's own handler raises KeyboardInterrupt too; this one also remembers it, for a
+    # Ctrl-C raised where it is swallowed
+    previous = signal.signal(signal.SIGINT, on_sigint) if _main_thread() else None
+    retry = signal.signal(signal.SIGALRM, on_sigint) if previous is not None and hasattr(signal, "setitimer") else None
+    previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", EstimatorWarning)  # each flight's, not the first only
             warnings.simplefilter("always", RepairWarning)
             warnings.showwarning = _one_line_warning(args.command)
-            return func(args)
-    except (UsageError, FlightError, StoreError, ValueError, FileNotFoundError) as exc:
-        print(f"windahrs {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+            status = func(args)
+        if interrupted:
+            raise KeyboardInterrupt
+        return status
+    except KeyboardInterrupt:
+        return fail(130, "interrupted; nothing was written")
     except BrokenPipeError:
         # Output piped into e.g. `head`: stop quietly, as Unix tools do.
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except KeyboardInterrupt:
-        print(f"windahrs {args.command}: interrupted; nothing was written", file=sys.stderr)
-        return 130
+    except OutputError as exc:  # writable when checked, then failed: a full disk, say
+        return fail(1, f"error: {_one_line(exc, args)}")
+    except (UsageError, ValueError, OSError) as exc:  # FlightError, LogFormatError, StoreError, missing files
+        return fail(2, f"error: {_one_line(exc, args)}")
+    except MemoryError:
+        return fail(1, "error: out of memory")
+    except Exception as exc:
+        if os.environ.get("WINDAHRS_DEBUG"):
+            raise
+        return fail(1, f"error: internal error, please report it (set WINDAHRS_DEBUG=1 for the traceback): "
+                       f"{type(exc).__name__}: {_one_line(exc, args)}")
+    finally:
+        sys.unraisablehook = previous_hook
+        if retry is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, retry)
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -290,11 +290,12 @@ def pcrb_layout(
 def _model_params(noise: PcrbNoise, dt: float, wind_noise: float, wind_noise_vertical: float) -> EskfParams:
     """The true noise as the shipped models' parameters: the process noise densities, the
     accelerometer's per-sample sigma ``accel / sqrt(dt)`` (dt the median IMU step), the
-    other sensors' sigmas (1 for a sensor without noise: its stream is then not used,
-    :func:`_positive`), the 3-D magnetometer, no preprocessing."""
+    other sensors' sigmas (the field's default for a sensor without noise, a placeholder
+    inside the sensor's range: its stream is then not used, :func:`_positive`), the 3-D
+    magnetometer, no preprocessing."""
 
-    def sigma(v: float) -> float:
-        return v if v > 0 else 1.0
+    def sigma(v: float, name: str) -> float:
+        return v if v > 0 else float(getattr(EskfParams, name))
 
     return EskfParams(
         gyro_noise=noise.gyro,
@@ -306,11 +307,11 @@ def _model_params(noise: PcrbNoise, dt: float, wind_noise: float, wind_noise_ver
         wind_noise_vertical=wind_noise_vertical,
         wind_vertical=True,
         gyro_scale_noise=0.0,
-        accel_sigma=sigma(noise.accel / math.sqrt(dt)),
-        mag_sigma=sigma(noise.mag),
-        gnss_sigma=sigma(noise.gnss),
-        tas_sigma=sigma(noise.tas),
-        vane_sigma=sigma(noise.vane),
+        accel_sigma=sigma(noise.accel / math.sqrt(dt), "accel_sigma"),
+        mag_sigma=sigma(noise.mag, "mag_sigma"),
+        gnss_sigma=sigma(noise.gnss, "gnss_sigma"),
+        tas_sigma=sigma(noise.tas, "tas_sigma"),
+        vane_sigma=sigma(noise.vane, "vane_sigma"),
         mag_mode="3d",
         accel_compensation="none",
     )

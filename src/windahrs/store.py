@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-import tempfile
+import secrets
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
@@ -35,14 +35,17 @@ from windahrs.flight import (
 __all__ = [
     "FLIGHT_FORMAT",
     "FLIGHT_VERSION",
+    "OutputError",
     "StoreError",
     "atomic_h5",
     "atomic_path",
+    "check_writable",
     "load_flight",
     "read_errors",
     "read_record",
     "read_repairs",
     "save_flight",
+    "write_bytes",
     "write_record",
     "write_repairs",
 ]
@@ -69,37 +72,101 @@ class StoreError(OSError):
     format or version. The message names the file and what is wrong."""
 
 
+class OutputError(OSError):
+    """A file cannot be written: its path is empty or a directory, its folder is missing or
+    not a folder, the file system refuses it (read-only, no permission) or fills up. The
+    message names the user's path (never a temporary file) and the system's reason."""
+
+
+def check_writable(path: str | os.PathLike[str]) -> Path:
+    """Check, before any work, that a file can be written at ``path``: a non-empty name
+    that is not a directory, in an existing directory where a file can be created (tried
+    with an empty probe file, removed at once: permissions alone miss a read-only file
+    system, and root). Returns the path; OutputError naming it otherwise."""
+    text = os.fspath(path)
+    if not text:
+        raise OutputError("expected a file name, found ''")
+    target = Path(text)
+    if text.endswith(os.sep) or target.is_dir():
+        raise OutputError(f"{text}: is a directory, expected a file name")
+    if target.exists() and not target.is_file():  # a device or FIFO would be replaced by a file
+        raise OutputError(f"{text}: is not a regular file (a device, FIFO or socket), expected a file name")
+    parent = target.parent
+    if not parent.exists():
+        # name the first missing folder, or the file standing where a folder should be
+        for anc in reversed(parent.parents):
+            if anc.exists() and not anc.is_dir():
+                raise OutputError(f"{text}: {anc} is not a directory")
+        raise OutputError(f"{text}: directory {parent} does not exist")
+    if not parent.is_dir():
+        raise OutputError(f"{text}: {parent} is not a directory")
+    probe = _new_temp(target, ".probe")
+    probe.unlink()
+    return target
+
+
+def _new_temp(target: Path, suffix: str = ".tmp") -> Path:
+    """A new empty file beside ``target``, created with mode 0o666 less the user's umask
+    (as a plain ``open`` would; ``tempfile.mkstemp`` makes it 0o600). OutputError naming
+    ``target`` when the directory refuses it."""
+    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}{suffix}")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot write in {target.parent} ({exc.strerror})") from None
+    os.close(fd)
+    return tmp
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it to ``path``.
 
-    On any exception (KeyboardInterrupt included) the temporary file is removed and the
-    target is left as it was.
+    The file gets the user's umask. On any exception (KeyboardInterrupt included) the
+    temporary file is removed and the target is left as it was; an OSError on the way
+    (a full disk, say) becomes an OutputError naming ``path``, not the temporary file.
     """
-    target = Path(path)
-    parent = target.parent if str(target.parent) else Path(".")
-    if not parent.is_dir():
-        raise FileNotFoundError(f"{target}: directory {parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    target = check_writable(path)
+    tmp = _new_temp(target)
     try:
-        yield tmp_path
-        os.replace(tmp_path, target)
-    except BaseException:
-        tmp_path.unlink(missing_ok=True)
+        yield tmp
+        os.replace(tmp, target)
+    except OutputError:
+        tmp.unlink(missing_ok=True)
         raise
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{target}: cannot write ({exc.strerror or exc})") from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_bytes(path: str | os.PathLike[str], data: bytes | memoryview) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_path`), synced to disk before
+    the rename. Returns the path."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    return Path(path)
 
 
 @contextlib.contextmanager
 def atomic_h5(path: str | os.PathLike[str], fmt: str, version: int) -> Iterator[h5py.File]:
-    """Open a new HDF5 file for writing atomically, with ``format``/``version`` set."""
-    with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = fmt
-            f.attrs["version"] = version
-            yield f
-            f.flush()
+    """Open a new HDF5 file for writing atomically, with ``format``/``version`` set.
+
+    The file is built in memory (HDF5's core driver) and written out by
+    :func:`write_bytes`: HDF5 writing to a full disk fails in its own cleanup and can
+    crash the process (a segfault in h5py 3.x), while a plain write fails cleanly."""
+    target = check_writable(path)
+    with h5py.File(target.name, "w", driver="core", backing_store=False) as f:
+        f.attrs["format"] = fmt
+        f.attrs["version"] = version
+        yield f
+        f.flush()
+        image = f.id.get_file_image()
+    write_bytes(target, image)
 
 
 def write_record(group: h5py.Group, record: object) -> None:

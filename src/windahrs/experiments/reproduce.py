@@ -24,11 +24,17 @@ from windahrs.metrics import attitude_errors, chi2_band, convergence_index, nees
 from windahrs.pcrb import reproduction_bound
 from windahrs.rotation import quat_conj, quat_log, quat_mul
 from windahrs.sim.paper import PaperScenario
-from windahrs.sim.scenario import simulate
+from windahrs.sim.scenario import (
+    SIM_BYTES_PER_SAMPLE,
+    check_memory,
+    check_simulation_size,
+    default_sensors,
+    simulate,
+)
 
 __all__ = [
-    "CLAIMS", "Case", "ReproductionResult", "default_cases", "flight_seed", "nees_check", "nees_summary",
-    "progress_total", "run_reproduction",
+    "CLAIMS", "Case", "ReproductionResult", "check_reproduction_size", "default_cases", "flight_seed",
+    "nees_check", "nees_summary", "progress_total", "run_reproduction",
 ]
 
 F64 = NDArray[np.float64]
@@ -144,6 +150,17 @@ def _body_errors_deg(est: Estimate, flight: Flight) -> F64:
     return np.degrees(quat_log(quat_mul(quat_conj(est.q_nb), flight.truth.q_nb)))
 
 
+def check_reproduction_size(runs: int, duration: float, n_cases: int) -> None:
+    """Refuse, before allocating, a reproduction that cannot fit in memory: ValueError
+    naming ``duration`` (one flight) or ``runs``. The flights of one wind and every case's
+    error arrays (Euler, body and total errors: 7 doubles per sample and run) are held at once."""
+    paper = PaperScenario(duration=duration)
+    check_simulation_size(paper)
+    n_samples = paper.duration * default_sensors(paper).imu_rate + 1
+    check_memory("runs", float(runs) * n_samples * (SIM_BYTES_PER_SAMPLE + 56 * n_cases),
+                 f"{runs} runs of {duration:g} s with {n_cases} cases")
+
+
 def run_reproduction(
     runs: int,
     *,
@@ -173,6 +190,7 @@ def run_reproduction(
     from windahrs.filters.registry import names
 
     cases = list(cases) if cases is not None else default_cases(names())
+    check_reproduction_size(runs, duration, len(cases))
     estimators = {(c.wind, c.filter): _estimator(c) for c in cases}
     res = ReproductionResult(
         meta={"runs": runs, "nees_runs": nees_runs, "duration_s": duration, "convergence_deg": CONVERGENCE_DEG}

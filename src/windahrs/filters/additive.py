@@ -80,7 +80,7 @@ from windahrs.filters.base import (
     merge_events,
 )
 from windahrs.filters.checks import checked
-from windahrs.filters.params import read_param_file
+from windahrs.filters.params import MAX_MAGNITUDE, read_param_file
 from windahrs.flight import Flight, Site
 from windahrs.models.additive import (
     Xi,
@@ -790,6 +790,8 @@ def check_number(obj: object, name: str, *, positive: bool) -> None:
     ok = isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
     if not ok or (v <= 0 if positive else v < 0):
         raise bad_param(obj, name, "a finite number " + ("> 0" if positive else ">= 0"))
+    if v > MAX_MAGNITUDE:
+        raise bad_param(obj, name, f"at most {MAX_MAGNITUDE:g}")
 
 
 def check_choice(obj: object, name: str, choices: tuple[str, ...]) -> None:
@@ -806,7 +808,10 @@ def params_from_toml(params_type: type[_P], path: str | os.PathLike[str]) -> _P:
     other = sorted(set(data) - {"windahrs"})
     if other:
         raise ValueError(f"{p}: expected only a [windahrs] table, found [{other[0]}]")
-    table: dict[str, Any] = dict(data.get("windahrs", {}))
+    raw = data.get("windahrs", {})
+    if not isinstance(raw, dict):
+        raise ValueError(f"{p}: [windahrs] must be a table, found {type(raw).__name__}")
+    table: dict[str, Any] = dict(raw)
     known = {f.name for f in dataclasses.fields(params_type)}  # type: ignore[arg-type]
     unknown = sorted(set(table) - known)
     if unknown:
@@ -815,4 +820,7 @@ def params_from_toml(params_type: type[_P], path: str | os.PathLike[str]) -> _P:
         )
     if isinstance(table.get("mean_wind_n"), list):
         table["mean_wind_n"] = tuple(table["mean_wind_n"])
-    return params_type(**table)
+    try:
+        return params_type(**table)
+    except ValueError as exc:
+        raise ValueError(f"{p}: {exc}") from None

@@ -105,6 +105,7 @@ class PaperParams(PaperNoWindParams):
         m = self.mean_wind_n
         if m is not None:
             ok = isinstance(m, tuple | list) and len(m) == 3
+            ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in m)
             if not ok or not np.isfinite(np.asarray(m, dtype=np.float64)).all():
                 raise bad_param(self, "mean_wind_n", "None or 3 finite numbers (north, east, down) m/s")
             object.__setattr__(self, "mean_wind_n", tuple(float(v) for v in m))

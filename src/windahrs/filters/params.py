@@ -32,14 +32,59 @@ from windahrs.conventions import DEG, G0
 from windahrs.repair import ACCEL_RANGE, GYRO_RANGE
 
 __all__ = [
-    "ARDUPILOT_MAP", "FLIGHT_PARAMS", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "changes_from_mapping",
-    "flight_params", "imu_rate_warning", "load_params", "matched_to", "read_param_file",
+    "ANGLE_FIELDS", "ARDUPILOT_MAP", "FIELD_MAX", "FLIGHT_PARAMS", "LOW_IMU_RATE_HZ", "MAX_MAGNITUDE", "PX4_MAP",
+    "EskfParams", "changes_from_mapping", "check_magnitude", "flight_params", "imu_rate_warning", "load_params",
+    "matched_to", "read_param_file",
 ]
 
 #: PX4 and ArduPilot filters use per-step noise at their prediction period; densities
 #: are that times sqrt(period). PX4 EKF2 predicts every 10 ms (EKF2_PREDICT_US default).
 _PX4_DT = 0.01
 _AP_DT = 0.01
+
+
+#: The largest parameter value any filter accepts. The filters multiply squared parameters
+#: together (``gate^2 S``, S built of ``sigma^2`` and the covariance's spreads): below 1e50
+#: any product of six such numbers stays finite in double precision, and no physical noise,
+#: spread, gate or time comes within many orders of magnitude of it.
+MAX_MAGNITUDE = 1e50
+
+#: Fields that are angles in rad: at most pi (an attitude or flow angle is off by 180 deg at most).
+ANGLE_FIELDS = frozenset({"init_att", "vane_sigma", "sideslip_sigma", "mag_dip_gate"})
+
+_GYRO_RANGE = 2000.0 * DEG  # rad/s: +-2000 deg/s, the widest full scale of MEMS gyros (MPU-9250, BMI088)
+_ACCEL_RANGE = 16.0 * G0  # m/s^2: +-16 g, the widest common MEMS accelerometer full scale (MPU-9250)
+_MAG_RANGE = 4912e-6  # T: +-4912 uT, the AK8963's full scale (the MPU-9250's magnetometer)
+_SPEED_OF_SOUND = 340.3  # m/s, ISA sea level: no velocity, wind or error of a subsonic UAV exceeds it
+
+#: Physical ceilings of the sensor-related fields (:func:`check_magnitude`): a standard
+#: deviation, initial spread or noise density (per sqrt(Hz), so at 1 Hz bandwidth) cannot
+#: exceed the range the sensor measures; angles are at most pi (:data:`ANGLE_FIELDS`);
+#: every other number at most :data:`MAX_MAGNITUDE`.
+FIELD_MAX: dict[str, float] = {
+    **dict.fromkeys(("gyro_noise", "gyro_bias_noise", "init_bias"), _GYRO_RANGE),
+    **dict.fromkeys(("accel_noise", "accel_bias_noise", "accel_sigma", "init_accel_bias", "drag_sigma"),
+                    _ACCEL_RANGE),
+    **dict.fromkeys(("mag_sigma", "init_mag_bias", "mag_bias_noise"), _MAG_RANGE),
+    **dict.fromkeys(("gnss_sigma", "tas_sigma", "init_v", "init_wind", "wind_noise", "wind_noise_vertical"),
+                    _SPEED_OF_SOUND),
+}
+
+
+def check_magnitude(name: str, value: object, *, owner: str = "") -> None:
+    """ValueError naming ``owner.name`` unless ``value`` is a finite number (not a bool) from
+    0 to :data:`MAX_MAGNITUDE` (to pi for :data:`ANGLE_FIELDS`)."""
+    where = f"{owner}.{name}" if owner else name
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{where}: expected a finite number >= 0, found {value!r}")
+    top = math.pi if name in ANGLE_FIELDS else FIELD_MAX.get(name, MAX_MAGNITUDE)
+    if value > top:
+        unit = ""
+        if name in ANGLE_FIELDS:
+            unit = " rad (an angle)"
+        elif name in FIELD_MAX:
+            unit = " (the sensor's physical range)"
+        raise ValueError(f"{where}: expected at most {top:.6g}{unit}, found {value!r}")
 
 
 @dataclass(frozen=True)
@@ -235,10 +280,11 @@ class EskfParams:
             if f.name in choices:
                 if v not in choices[f.name]:
                     raise ValueError(f"{f.name}: expected one of {choices[f.name]}, found {v!r}")
-            elif isinstance(v, bool):
-                continue
-            elif not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"{f.name}: expected a finite number >= 0, found {v!r}")
+            elif f.type in ("bool", bool):  # refused, not coerced: 2 or "yes" is no flag
+                if not isinstance(v, bool):
+                    raise ValueError(f"{f.name}: expected true or false, found {v!r}")
+            else:
+                check_magnitude(f.name, v)
         for name in ("gyro_noise", "mag_sigma", "gnss_sigma", "tas_sigma", "vane_sigma", "accel_sigma", "drag_sigma"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
@@ -380,6 +426,10 @@ def changes_from_mapping(
                 name, conv = mapping[key]
                 if not isinstance(value, int | float) or isinstance(value, bool):
                     raise ValueError(f"{where}: [{table}] {key}: expected a number, found {value!r}")
+                try:
+                    check_magnitude(key, value, owner=f"[{table}]")
+                except ValueError as exc:
+                    raise ValueError(f"{where}: {exc}") from None
                 if name not in fields:
                     skipped.append(f"{key} ({name})")
                     continue
@@ -408,13 +458,26 @@ def load_params(
 def read_param_file(path: str | Path) -> dict[str, Any]:
     """The tables of a TOML parameter file; ValueError naming the file when it is missing
     or not valid TOML (every estimator's parameter loader reads through this)."""
+    text = str(path)
     p = Path(path)
+    if not text:
+        raise ValueError("parameter file: expected a path, found ''")
+    if p.is_dir():
+        raise ValueError(f"{p}: is a directory, expected a TOML parameter file")
+    if p.exists() and not p.is_file():  # reading a FIFO would wait forever
+        raise ValueError(f"{p}: not a regular file (a device, FIFO or socket), expected a TOML parameter file")
     try:
-        return tomllib.loads(p.read_text())
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ValueError(f"{p}: no such parameter file") from None
+    except NotADirectoryError:
+        raise ValueError(f"{p}: no such parameter file (a part of its path is a file)") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{p}: not valid TOML (not UTF-8 text: {exc.reason} at byte {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read the parameter file ({exc.strerror or exc})") from None
 
 
 #: Below this IMU rate (Hz) a stream is taken to hold point samples (unmeasured_motion_dt

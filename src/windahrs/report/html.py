@@ -17,7 +17,6 @@ import html
 import math
 import numbers
 import os
-import secrets
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -291,24 +290,13 @@ def render_html(title: str, sections: Sequence[Section]) -> str:
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically: a temporary file in the same
-    directory, then ``os.replace``. On any error the temporary file is removed and an
-    existing file at ``path`` is left untouched. The directory must exist. Returns the path."""
-    target = Path(path)
-    data = text.encode("utf-8")
-    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
-    # os.open with mode 0o666 lets the umask decide the permissions, as for a plain open().
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return target
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`windahrs.store.write_bytes`: a
+    temporary file in the same directory with the user's umask, then ``os.replace``). On
+    any error the temporary file is removed and an existing file at ``path`` is left
+    untouched; OutputError names ``path``. The directory must exist. Returns the path."""
+    from windahrs.store import write_bytes
+
+    return write_bytes(path, text.encode("utf-8"))
 
 
 def write_html(path: str | os.PathLike[str], html_text: str) -> Path:

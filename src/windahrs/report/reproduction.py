@@ -16,6 +16,7 @@ import numpy as np
 from windahrs.experiments.reproduce import CLAIMS, ReproductionResult, claims
 from windahrs.report.figures import error_vs_bound_png, error_vs_sample_png
 from windahrs.report.html import Image, Section, Table, render_html, write_html, write_text
+from windahrs.store import write_bytes
 
 __all__ = ["write_reproduction"]
 
@@ -173,7 +174,7 @@ def write_reproduction(res: ReproductionResult, out: Path) -> list[Path]:
         md += [f"## {tab.caption}", "", tab.to_markdown(), ""]
     figs = _figures(res)
     for name, png, title in figs:
-        (out / name).write_bytes(png)
+        write_bytes(out / name, png)
         written.append(out / name)
         md += [f"![{title}]({name})", ""]
     write_text(out / "results.md", "\n".join(md))

@@ -36,8 +36,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import secrets
 import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -183,7 +183,9 @@ class RawFlight:
         parent = target.parent if str(target.parent) else Path(".")
         if not parent.is_dir():
             raise FaultError("path", "a path in an existing directory", f"{parent} does not exist")
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+        # a plain mkdir, which honours the user's umask (tempfile.mkdtemp makes it 0o700)
+        tmp = parent / f".{target.name}.{secrets.token_hex(6)}.tmp"
+        tmp.mkdir()
         try:
             self._write_csv(tmp)
             os.replace(tmp, target)

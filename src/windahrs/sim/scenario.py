@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Literal
 
 import numpy as np
@@ -14,7 +15,10 @@ from windahrs.sim.paper import PaperScenario, paper_truth
 from windahrs.sim.quadrotor import QuadrotorScenario, quadrotor_truth
 from windahrs.sim.sensors import SensorSuite, measure
 
-__all__ = ["VEHICLES", "Scenario", "default_site", "make_scenario", "simulate"]
+__all__ = [
+    "MAX_W20", "MIN_DURATION_S", "SIM_BYTES_PER_SAMPLE", "VEHICLES", "Scenario", "check_memory",
+    "check_simulation_size", "default_site", "make_scenario", "physical_memory", "simulate",
+]
 
 Scenario = FixedWingScenario | QuadrotorScenario | PaperScenario
 VEHICLES: tuple[str, ...] = ("fixedwing", "quadrotor", "paper")
@@ -23,6 +27,56 @@ VEHICLES: tuple[str, ...] = ("fixedwing", "quadrotor", "paper")
 def default_site() -> Site:
     """The paper's site: Dalian, IGRF-13 field, standard gravity."""
     return Site(mag_n=MAG_DALIAN_N.copy())
+
+
+#: Shortest simulated flight, s: the slowest default stream (GNSS velocity, 10 Hz) then
+#: has 10 samples, and every stream at least two.
+MIN_DURATION_S = 1.0
+
+#: Strongest W20 a scenario takes, m/s: MIL-F-8785C's "severe" 45 kt, the largest W20 for
+#: which it gives low-altitude turbulence intensities (light / moderate / severe: 15 / 30 /
+#: 45 kt); beyond it the Dryden model has no basis.
+MAX_W20 = 45.0 * 0.514444
+
+#: Peak memory of :func:`simulate` per IMU sample, bytes: measured 0.42 to 0.67 kB
+#: (tracemalloc, 40 s flights of each vehicle at 200 Hz), rounded up.
+SIM_BYTES_PER_SAMPLE = 1024
+
+
+def physical_memory() -> int | None:
+    """The machine's physical memory in bytes, or None where the OS does not say."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
+        return None
+
+
+def check_memory(name: str, need: float, what: str) -> None:
+    """ValueError naming ``name`` (the argument that asked for it) when ``need`` bytes
+    exceed the machine's physical memory: checked before allocating, so that an absurd
+    request is refused at once instead of swapping or dying in the allocator."""
+    have = physical_memory()
+    if have is not None and need > have:
+        raise ValueError(
+            f"{name}: {what} needs about {_size(need)} of memory; this machine has {_size(have)}"
+        )
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.3g} {unit}"
+        n /= 1024
+    return f"{n:.3g} PiB"  # pragma: no cover
+
+
+def check_simulation_size(scenario: Scenario, sensors: SensorSuite | None = None) -> None:
+    """Refuse (ValueError naming ``duration``) a simulation whose arrays would not fit in
+    memory, before allocating them."""
+    sensors = sensors or default_sensors(scenario)
+    n = scenario.duration * sensors.imu_rate + 1
+    what = f"simulating {scenario.duration:g} s at {sensors.imu_rate:g} Hz"
+    check_memory("duration", float(n) * SIM_BYTES_PER_SAMPLE, what)
 
 
 def make_scenario(
@@ -39,8 +93,15 @@ def make_scenario(
         raise ValueError(f"vehicle: expected one of {', '.join(VEHICLES)}, found {vehicle!r}")
     if duration is not None and not (np.isfinite(duration) and duration > 0):
         raise ValueError(f"duration: expected > 0 s, found {duration!r}")
+    if duration is not None and duration < MIN_DURATION_S:
+        raise ValueError(f"duration: expected at least {MIN_DURATION_S:g} s, found {duration!r}")
     if not (np.isfinite(wind) and wind >= 0):
         raise ValueError(f"wind: expected W20 >= 0 m/s, found {wind!r}")
+    if wind > MAX_W20:
+        raise ValueError(
+            f"wind: expected W20 at most {MAX_W20:.4g} m/s (MIL-F-8785C's severe 45 kt, the strongest "
+            f"low-altitude turbulence it defines), found {wind!r}"
+        )
     kw: dict[str, float] = {}
     if duration is not None:
         kw["duration"] = float(duration)
@@ -66,6 +127,7 @@ def simulate(
     default (``sensors`` decides)."""
     sensors = sensors or default_sensors(scenario)
     site = site or default_site()
+    check_simulation_size(scenario, sensors)
     dt = 1.0 / sensors.imu_rate
     n = round(scenario.duration / dt) + 1
     t = np.arange(n, dtype=np.float64) * dt
