@@ -183,6 +183,68 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _workers_arg(args: argparse.Namespace) -> None:
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError(f"--workers: a local cluster's size, not used with --scheduler {args.scheduler}; give one")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers: expected an integer >= 1, found {args.workers}")
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from windahrs.experiments.cluster import open_client
+    from windahrs.experiments.sweep import ResultStore, load_spec, run_sweep
+
+    _workers_arg(args)
+    spec = load_spec(args.spec)  # every field checked before any work
+    ResultStore(args.out)  # --out must be a directory or a new name
+    serial = args.workers == 1 and args.scheduler is None
+    try:
+        with _runs_bar(spec.rows, "sweep") as bar:
+
+            def step(done: int, total: int) -> None:
+                if bar.n == 0 and bar.initial == 0 and done > 0:  # rows already present: not in the rate
+                    bar.initial = bar.n = done
+                    bar.refresh()
+                else:
+                    bar.update(done - bar.n)
+
+            with contextlib.nullcontext(None) if serial else open_client(args.scheduler, args.workers) as client:
+                summary = run_sweep(spec, args.out, client, progress=step)
+    except KeyboardInterrupt:
+        kept = len(ResultStore(args.out).completed_ids())
+        print(f"windahrs sweep: interrupted; {kept} of {spec.rows} rows are in {args.out}, rerun to resume",
+              file=sys.stderr)
+        return 130
+    print(
+        f"{summary.computed} rows computed, {summary.skipped} already present, of {summary.total} "
+        f"({len(spec.scenarios)} scenarios x {len(spec.estimators)} estimators x {len(spec.seeds)} seeds) "
+        f"in {summary.seconds:.0f} s; results in {summary.out}"
+    )
+    if summary.errors:
+        _note(f"{summary.errors} rows record an estimator error (column 'error')")
+    for f in summary.failed:
+        _note(f"run failed: {f}")
+    if summary.failed:
+        _note(f"{len(summary.failed)} runs failed and are not in {summary.out}; rerun to retry them")
+        return 1
+    return 0
+
+
+def _cmd_sweep_report(args: argparse.Namespace) -> int:
+    from windahrs.experiments.sweep import read_results
+    from windahrs.report.sweep import write_sweep_report
+
+    if not args.results.exists():
+        raise UsageError(f"results: {args.results} does not exist")
+    rows = read_results(args.results).to_pydict()
+    files = write_sweep_report(rows, args.out, title=f"windahrs sweep: {args.results.name}")
+    for f in files:
+        print(f"wrote {f}")
+    return 0
+
+
 def _cmd_bench_data(args: argparse.Namespace) -> int:
     import json
 
@@ -544,6 +606,37 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds per run (default 20)")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     r.set_defaults(func=_cmd_reproduce)
+
+    sw = sub.add_parser(
+        "sweep",
+        help="many simulated flights x estimators from a TOML spec, on Dask, into Parquet (resumable)",
+        description="Run every scenario x estimator x seed of a TOML sweep spec (docs/sweep.md) on a Dask cluster "
+        "and append one row per run and estimator to a Parquet dataset directory: the parameters, RMSE per axis, "
+        "tilt and total, convergence time, NEES, the PCRB ratio where a bound applies, run time and a "
+        "content-addressed run id. Rerunning resumes: rows already present are skipped. Ctrl-C keeps the rows "
+        "finished so far.",
+    )
+    sw.add_argument("spec", type=Path, metavar="SPEC.toml", help="the sweep specification")
+    sw.add_argument("--out", type=Path, required=True, metavar="RESULTS.parquet",
+                    help="the Parquet dataset directory (created; part files are added to it)")
+    sw.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                    help="submit to this running Dask scheduler instead of starting a local cluster")
+    sw.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="local cluster size, one process per worker with one thread (default: one per core); "
+                    "1 runs in this process without Dask")
+    sw.set_defaults(func=_cmd_sweep)
+
+    sr = sub.add_parser(
+        "sweep-report",
+        help="tables and figures of a sweep's Parquet results in one HTML page",
+        description="Read a sweep's Parquet dataset and write DIR/report.html (self-contained), DIR/summary.md "
+        "and PNG figures: per scenario family, a table of estimator x wind speed (mean and spread over seeds of "
+        "the RMSE, convergence, NEES, PCRB ratio) and RMSE against wind speed per estimator with the spread over "
+        "seeds.",
+    )
+    sr.add_argument("results", type=Path, metavar="RESULTS.parquet", help="a sweep's dataset directory")
+    sr.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    sr.set_defaults(func=_cmd_sweep_report)
 
     b = sub.add_parser(
         "bench-data",
