@@ -194,12 +194,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     import contextlib
 
     from windahrs.experiments.cluster import open_client
-    from windahrs.experiments.sweep import ResultStore, load_spec, run_sweep
+    from windahrs.experiments.sweep import ResultStore, load_spec, plan_tasks, run_sweep
 
     _workers_arg(args)
     spec = load_spec(args.spec)  # every field checked before any work
-    ResultStore(args.out)  # --out must be a directory or a new name
-    serial = args.workers == 1 and args.scheduler is None
+    todo, _ = plan_tasks(spec, ResultStore(args.out).completed_ids())  # --out: a directory or a new name
+    serial = (args.workers == 1 and args.scheduler is None) or not todo  # nothing to do: no cluster
     try:
         with _runs_bar(spec.rows, "sweep") as bar:
 
