@@ -144,7 +144,10 @@ def reproduce_nees_runs(runs: int, quick: bool, nees_runs: int | None) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    import functools
     import time
+
+    from windahrs.experiments.cluster import default_workers, open_client
 
     from windahrs.experiments.reproduce import NEES_CHECK_LABEL, default_cases, progress_total, run_reproduction
     from windahrs.filters.registry import names
@@ -158,6 +161,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     nees_runs = reproduce_nees_runs(runs, args.quick, args.nees_runs)
     cases = default_cases(names())
     checked = sum(c.bound is not None for c in cases)
+    _workers_arg(args)
+    workers = args.workers if args.workers is not None or args.scheduler is not None else default_workers()
+    serial = args.scheduler is None and workers == 1
     t0 = time.perf_counter()
     with _runs_bar(progress_total(cases, runs, nees_runs), "reproduce") as bar:
         seen: set[str] = set()
@@ -167,9 +173,14 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             bar.set_postfix_str(f"case {len(seen)}/{len(cases)} {label}, run {run}/{of}", refresh=False)
             bar.update(1)
 
-        res = run_reproduction(
-            runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs
-        )
+        if serial:
+            res = run_reproduction(runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs)
+        else:
+            with open_client(args.scheduler, None if args.scheduler else workers) as client:
+                res = run_reproduction(
+                    runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs,
+                    submit=functools.partial(client.submit, pure=False),
+                )
     files = write_reproduction(res, args.out)
     extra = f", NEES check of {checked} cases on {nees_runs} runs" if nees_runs > runs else ""
     print(f"{len(cases)} cases x {runs} runs{extra} in {time.perf_counter() - t0:.0f} s")
@@ -605,6 +616,11 @@ def _parser() -> argparse.ArgumentParser:
                    "no extra flights); the check is also reported per block of the runs per case")
     r.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds per run (default 20)")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    r.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="run on a local Dask cluster of N processes (default: one per core); 1 runs serially in this "
+                   "process. The results are the same bit for bit")
+    r.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="run on this running Dask scheduler's workers instead of a local cluster")
     r.set_defaults(func=_cmd_reproduce)
 
     sw = sub.add_parser(
