@@ -50,8 +50,8 @@ name = "mekf"
 
 [[estimator]]
 name = "ins-wind"
-params = {{ accel_sigma = 0.6 }}
-label = "ins-wind-a0.6"
+params = {{ wind_noise = 0.1 }}
+label = "ins-wind-wn0.1"
 """
 
 
@@ -74,7 +74,7 @@ def _doc(text: str) -> dict[str, object]:
         (tiny().replace("[grid]", "[grid]\nwindspeed = 3.0"), r"grid\.windspeed: unknown key"),
         (tiny().replace("[sweep]", "[sweep]\nworkers = 2"), r"sweep\.workers: unknown key"),
         (tiny() + "\n[extra]\nx = 1\n", r"^extra: unknown key"),
-        (tiny().replace("wind = [0.0, 6.0]", 'wind = [0.0, "6"]'), r"wind: expected a number, m/s, found a string '6'"),
+        (tiny().replace("wind = [0.0, 6.0]", 'wind = [0.0, "6"]'), r"^grid\.wind\[1\]: expected a number, m/s, found a string '6'"),
         (tiny().replace("wind = [0.0, 6.0]", "wind = true"), r"grid\.wind: expected a number, m/s, found a boolean True"),
         (tiny().replace('vehicle = "fixedwing"', "vehicle = 1"), r"grid\.vehicle: expected a vehicle name"),
         (tiny().replace('vehicle = "fixedwing"', 'vehicle = "blimp"'), r"vehicle: expected one of .*'blimp'"),
@@ -84,12 +84,12 @@ def _doc(text: str) -> dict[str, object]:
         (tiny(seeds="[0, -1]"), r"sweep\.seeds\[1\]: expected an integer from 0"),
         (tiny(seeds="0"), r"sweep\.seeds: expected a count from 1"),
         (tiny(seeds="600000"), r"sweep: expected at most 1000000 rows .* 2 x 2 x 600000 = 2400000"),
-        (tiny(duration=1e6), r"duration: expected > 0 and <= 3600 s, found 1000000.0"),
+        (tiny(duration=1e6), r"^grid \(vehicle='fixedwing', wind=0.0, duration=1000000.0\): duration: expected > 0 and <= 3600 s"),
         (tiny(duration=-1.0), r"duration: expected > 0 and <= 3600 s, found -1.0"),
         (tiny().replace('name = "mekf"', 'name = "nope"'), r"estimator\[0\]: .*nope"),
-        (tiny().replace("accel_sigma = 0.6", "no_such_field = 1"), r"estimator\[1\]: .*no_such_field"),
-        (tiny().replace('label = "ins-wind-a0.6"', 'label = "mekf"'), r"estimator\[1\]\.label: expected distinct"),
-        (tiny().replace('label = "ins-wind-a0.6"', "label = 3"), r"estimator\[1\]\.label: expected a string"),
+        (tiny().replace("wind_noise = 0.1", "no_such_field = 1"), r"estimator\[1\]: .*no_such_field"),
+        (tiny().replace('label = "ins-wind-wn0.1"', 'label = "mekf"'), r"estimator\[1\]\.label: expected distinct"),
+        (tiny().replace('label = "ins-wind-wn0.1"', "label = 3"), r"estimator\[1\]\.label: expected a string"),
         (tiny().replace('name = "mekf"', 'name = "mekf"\nspec = "x"'), r"estimator\[0\]\.spec: unknown key"),
         (tiny().split("[[estimator]]")[0], r"estimator: expected at least one"),
         ("[sweep]\nseeds = 1\n[[estimator]]\nname = 'mekf'\n", r"grid, scenario: expected"),
@@ -111,7 +111,7 @@ def test_spec_grid_and_list_and_ids() -> None:
     assert len(ids) == 12  # every row its own address
     assert run_id(sc, est, 3, "1") == run_id(sc, est, 3, "1")
     assert run_id(sc, est, 3, "1") != run_id(sc, est, 3, "2")  # the version is part of the address
-    relabelled = parse_spec(_doc(tiny().replace('label = "ins-wind-a0.6"', 'label = "other"'))).estimators[1]
+    relabelled = parse_spec(_doc(tiny().replace('label = "ins-wind-wn0.1"', 'label = "other"'))).estimators[1]
     assert run_id(sc, relabelled, 3, "1") == run_id(sc, est, 3, "1")  # a label is a name, not a parameter
 
 
@@ -190,11 +190,11 @@ def test_sweep_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     mekf = [i for i, e in enumerate(cols["estimator"]) if e == "mekf"]
     assert all(math.isfinite(cols["pcrb_ratio_x"][i]) and cols["rmse_total_deg"][i] > 0 for i in mekf)
     assert all(math.isnan(v) for e, v in zip(cols["estimator"], cols["pcrb_ratio_x"], strict=True)
-               if e == "ins-wind-a0.6") is False  # ins-wind has a bound too (the "ins" model)
+               if e == "ins-wind-wn0.1") is False  # ins-wind has a bound too (the "ins" model)
     rep = tmp_path / "rep"
     assert main(["sweep-report", str(out), "--out", str(rep)]) == 0
     html = (rep / "report.html").read_text()
-    assert "data:image/png;base64," in html and "ins-wind-a0.6" in html
+    assert "data:image/png;base64," in html and "ins-wind-wn0.1" in html
     assert len(list(rep.glob("*.png"))) == 2
     assert main(["sweep-report", str(tmp_path / "missing"), "--out", str(rep)]) == 2
 

@@ -192,7 +192,7 @@ def _scenario(where: str, values: dict[str, Any]) -> ScenarioSpec:
     try:
         spec.build()
     except ValueError as exc:
-        raise ValueError(f"{where.rstrip('.') or 'scenario'}: {exc}") from None
+        raise ValueError(f"{where.rstrip('. :')}: {exc}") from None
     return spec
 
 
@@ -203,6 +203,9 @@ def _grid(table: dict[str, Any]) -> list[ScenarioSpec]:
         values = v if isinstance(v, list) else [v]
         if not values:
             raise ValueError(f"grid.{key}: expected a value or a non-empty list, found []")
+        types, expected = SCENARIO_KEYS[key]
+        for i, x in enumerate(values):
+            _check_type(f"grid.{key}[{i}]" if isinstance(v, list) else f"grid.{key}", x, types, expected)
         axes.append(values)
     n = math.prod(len(a) for a in axes)
     if n > MAX_ROWS:
@@ -210,7 +213,7 @@ def _grid(table: dict[str, Any]) -> list[ScenarioSpec]:
     out = []
     for combo in itertools.product(*axes):
         values = dict(zip(table, combo, strict=True))
-        where = "grid." if len(axes) and n == 1 else "grid (" + ", ".join(f"{k}={v!r}" for k, v in values.items()) + ")."
+        where = "grid (" + ", ".join(f"{k}={v!r}" for k, v in values.items()) + "): "
         out.append(_scenario(where, values))
     return out
 
