@@ -23,8 +23,8 @@ import pytest
 pytest.importorskip("distributed", reason="the dask extra is not installed")
 pytest.importorskip("pyarrow", reason="the dask extra is not installed")
 
-from windahrs.cli import main  # noqa: E402
-from windahrs.experiments.sweep import (  # noqa: E402
+from windahrs.cli import main
+from windahrs.experiments.sweep import (
     ResultStore,
     parse_spec,
     plan_tasks,
@@ -74,17 +74,21 @@ def _doc(text: str) -> dict[str, object]:
         (tiny().replace("[grid]", "[grid]\nwindspeed = 3.0"), r"grid\.windspeed: unknown key"),
         (tiny().replace("[sweep]", "[sweep]\nworkers = 2"), r"sweep\.workers: unknown key"),
         (tiny() + "\n[extra]\nx = 1\n", r"^extra: unknown key"),
-        (tiny().replace("wind = [0.0, 6.0]", 'wind = [0.0, "6"]'), r"^grid\.wind\[1\]: expected a number, m/s, found a string '6'"),
-        (tiny().replace("wind = [0.0, 6.0]", "wind = true"), r"grid\.wind: expected a number, m/s, found a boolean True"),
+        (tiny().replace("wind = [0.0, 6.0]", 'wind = [0.0, "6"]'),
+         r"^grid\.wind\[1\]: expected a number, m/s, found a string '6'"),
+        (tiny().replace("wind = [0.0, 6.0]", "wind = true"),
+         r"grid\.wind: expected a number, m/s, found a boolean True"),
         (tiny().replace('vehicle = "fixedwing"', "vehicle = 1"), r"grid\.vehicle: expected a vehicle name"),
         (tiny().replace('vehicle = "fixedwing"', 'vehicle = "blimp"'), r"vehicle: expected one of .*'blimp'"),
-        (tiny().replace("[grid]", "[grid]\nturbulence = 1"), r"grid\.turbulence: expected true or false, found an integer 1"),
+        (tiny().replace("[grid]", "[grid]\nturbulence = 1"),
+         r"grid\.turbulence: expected true or false, found an integer 1"),
         (tiny(seeds="2.0"), r"sweep\.seeds: expected a count or a list of integers, found a float 2.0"),
         (tiny(seeds="[0, 1, 1]"), r"sweep\.seeds: expected distinct seeds, found 1 twice"),
         (tiny(seeds="[0, -1]"), r"sweep\.seeds\[1\]: expected an integer from 0"),
         (tiny(seeds="0"), r"sweep\.seeds: expected a count from 1"),
         (tiny(seeds="600000"), r"sweep: expected at most 1000000 rows .* 2 x 2 x 600000 = 2400000"),
-        (tiny(duration=1e6), r"^grid \(vehicle='fixedwing', wind=0.0, duration=1000000.0\): duration: expected > 0 and <= 3600 s"),
+        (tiny(duration=1e6),
+         r"^grid \(vehicle='fixedwing', wind=0.0, duration=1000000.0\): duration: expected > 0 and <= 3600 s"),
         (tiny(duration=-1.0), r"duration: expected > 0 and <= 3600 s, found -1.0"),
         (tiny().replace('name = "mekf"', 'name = "nope"'), r"estimator\[0\]: .*nope"),
         (tiny().replace("wind_noise = 0.1", "no_such_field = 1"), r"estimator\[1\]: .*no_such_field"),
@@ -208,10 +212,11 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def cluster() -> Iterator[tuple[str, list[subprocess.Popen[bytes]]]]:
     """``dask scheduler`` and two ``dask worker`` processes (no nanny: killing one is a
-    dead worker, not a restart) on 127.0.0.1; yields the address and the workers."""
+    dead worker, not a restart) on 127.0.0.1; yields the address and the workers. Shared by
+    the module's cluster tests; the killed-worker test, which leaves one worker, runs last."""
     from distributed import Client
 
     port = _free_port()
@@ -220,12 +225,12 @@ def cluster() -> Iterator[tuple[str, list[subprocess.Popen[bytes]]]]:
     dask = [sys.executable, "-m", "dask"]
     procs: list[subprocess.Popen[bytes]] = []
     try:
+        quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
         procs.append(subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--no-dashboard"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+                                       "--no-dashboard"], **quiet))
         workers = [
             subprocess.Popen([*dask, "worker", addr, "--nthreads", "1", "--no-nanny", "--no-dashboard",
-                              "--host", "127.0.0.1", "--name", f"w{i}"], env=env, stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL)
+                              "--host", "127.0.0.1", "--name", f"w{i}"], **quiet)
             for i in range(2)
         ]
         procs += workers
@@ -247,6 +252,31 @@ def cluster() -> Iterator[tuple[str, list[subprocess.Popen[bytes]]]]:
             p.wait(timeout=30)
 
 
+def test_reproduce_on_workers_equals_serial_bit_for_bit(tmp_path: Path, cluster: tuple[str, list]) -> None:
+    import functools
+
+    from distributed import Client
+
+    from windahrs.experiments.reproduce import Case, run_reproduction
+    from windahrs.report.reproduction import write_reproduction
+
+    addr, _ = cluster
+    cases = [Case(0.0, "paper", "oracle", "fig4_5"), Case(5.0, "paper:wind=mean", "mean", "fig4"),
+             Case(5.0, "mekf", "none", "", "gravity"), Case(5.0, "ins-wind", "estimated", "", "ins")]
+    kw = {"duration": 2.0, "cases": cases, "nees_runs": 13}  # 13: two NEES-check tasks of the 5 m/s flights
+    write_reproduction(run_reproduction(2, **kw), tmp_path / "serial")  # type: ignore[arg-type]
+    with Client(addr, timeout="10s") as client:
+        res = run_reproduction(2, submit=functools.partial(client.submit, pure=False), **kw)  # type: ignore[arg-type]
+    write_reproduction(res, tmp_path / "dask")
+    a, b = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("serial", "dask"))
+    for r in (a, b):
+        del r["meta"]["seconds"]  # wall time, the one field that may differ
+    assert a == b
+    assert (tmp_path / "serial" / "results.md").read_text() == (tmp_path / "dask" / "results.md").read_text()
+    assert [c["nees_check"] is not None for c in a["cases"]] == [False, False, True, True]
+    assert all(c["pcrb_ratio"] is not None for c in a["cases"][2:])
+
+
 def test_killed_worker_every_run_once_equal_to_serial(tmp_path: Path, cluster: tuple[str, list]) -> None:
     from distributed import Client
 
@@ -255,7 +285,8 @@ def test_killed_worker_every_run_once_equal_to_serial(tmp_path: Path, cluster: t
     spec.write_text(tiny(seeds="6", pcrb=True, duration=4.0))  # 24 rows, 12 flights of about 0.5 s
     out = tmp_path / "r.parquet"
     codes: list[int] = []
-    run = threading.Thread(target=lambda: codes.append(main(["sweep", str(spec), "--out", str(out), "--scheduler", addr])))
+    argv = ["sweep", str(spec), "--out", str(out), "--scheduler", addr]
+    run = threading.Thread(target=lambda: codes.append(main(argv)))
     with Client(addr, timeout="10s") as watch:
         victim = next(w for w, info in watch.scheduler_info()["workers"].items() if info["name"] == "w1")
         run.start()
@@ -269,7 +300,7 @@ def test_killed_worker_every_run_once_equal_to_serial(tmp_path: Path, cluster: t
         assert not run.is_alive()
         assert victim not in watch.scheduler_info()["workers"]
     assert codes == [0]  # the dead worker's runs went to the other one
-    assert main(["sweep", str(spec), "--out", str(out), "--scheduler", addr]) == 0  # the rerun: nothing to add
+    assert main(argv) == 0  # the rerun: nothing to add
     distributed_rows = _metrics(out)
     serial = tmp_path / "serial.parquet"
     assert main(["sweep", str(spec), "--out", str(serial), "--workers", "1"]) == 0
@@ -278,14 +309,18 @@ def test_killed_worker_every_run_once_equal_to_serial(tmp_path: Path, cluster: t
     assert distributed_rows == serial_rows
 
 
-def test_reproduce_on_workers_equals_serial_bit_for_bit(tmp_path: Path, cluster: tuple[str, list]) -> None:
-    addr, _ = cluster
-    common = ["reproduce", "--runs", "2", "--nees-runs", "3", "--duration", "2"]
-    assert main([*common, "--out", str(tmp_path / "serial"), "--workers", "1"]) == 0
-    assert main([*common, "--out", str(tmp_path / "dask"), "--scheduler", addr]) == 0
-    a, b = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("serial", "dask"))
-    for r in (a, b):
-        del r["meta"]["seconds"]  # wall time, the one field that may differ
-    assert a == b
-    assert (tmp_path / "serial" / "results.md").read_text() == (tmp_path / "dask" / "results.md").read_text()
-    assert any(c["nees_check"] is not None for c in a["cases"])
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--workers", "0"], "--workers: expected an integer >= 1, found 0"),
+        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers: a local cluster's size"),
+    ],
+)
+def test_workers_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str) -> None:
+    spec = tmp_path / "s.toml"
+    spec.write_text(tiny())
+    assert main(["reproduce", "--quick", "--out", str(tmp_path / "r"), *args]) == 2
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "s"), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(message in e for e in err)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()

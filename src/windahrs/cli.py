@@ -148,7 +148,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     import time
 
     from windahrs.experiments.cluster import default_workers, open_client
-
     from windahrs.experiments.reproduce import NEES_CHECK_LABEL, default_cases, progress_total, run_reproduction
     from windahrs.filters.registry import names
     from windahrs.report.reproduction import write_reproduction

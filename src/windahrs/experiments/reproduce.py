@@ -19,8 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
-from windahrs.filters.registry import make_estimator
 from windahrs.experiments.cluster import Submit, serial_submit
+from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
 from windahrs.metrics import attitude_errors, chi2_band, convergence_index, nees_attitude
 from windahrs.pcrb import reproduction_bound

@@ -212,9 +212,9 @@ def _grid(table: dict[str, Any]) -> list[ScenarioSpec]:
         raise ValueError(f"grid: expected at most {MAX_ROWS} scenarios, found {n}")
     out = []
     for combo in itertools.product(*axes):
-        values = dict(zip(table, combo, strict=True))
-        where = "grid (" + ", ".join(f"{k}={v!r}" for k, v in values.items()) + "): "
-        out.append(_scenario(where, values))
+        chosen = dict(zip(table, combo, strict=True))
+        where = "grid (" + ", ".join(f"{k}={v!r}" for k, v in chosen.items()) + "): "
+        out.append(_scenario(where, chosen))
     return out
 
 

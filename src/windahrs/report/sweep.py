@@ -107,7 +107,7 @@ def write_sweep_report(rows: dict[str, list[Any]], out: Path, *, title: str = "w
                     " / ".join(f"{v:.3f}" for v in (_nanmean(col(f"rmse_{a}_deg")) or math.nan
                                                     for a in ("roll", "pitch", "yaw"))) if ok else None,
                     _nanmedian(col("convergence_s")), _nanmean(col("nees_mean")),
-                    None if any(r is None for r in ratio) else " / ".join(f"{r:.2f}" for r in ratio),  # type: ignore[str-format]
+                    None if any(r is None for r in ratio) else " / ".join(f"{r:.2f}" for r in ratio),
                     _nanmean(col("seconds")),
                 ])
         table = Table(
