@@ -49,7 +49,8 @@ import numpy as np
 
 __all__ = [
     "SCENARIO_KEYS", "EstimatorSpec", "ResultStore", "RunTask", "ScenarioSpec", "SweepSpec", "SweepSummary",
-    "load_spec", "parse_spec", "plan_tasks", "run_sweep", "run_task", "windahrs_version",
+    "chunk_size", "load_spec", "parse_spec", "plan_tasks", "read_results", "run_sweep", "run_task", "run_tasks",
+    "windahrs_version",
 ]
 
 #: Refused before any work: more rows (runs × estimators) than this in one spec.
@@ -542,6 +543,25 @@ def plan_tasks(spec: SweepSpec, done: set[str], version: str | None = None) -> t
     return tasks, skipped
 
 
+#: Tasks per worker thread that the automatic chunking aims for (load balance at the end of a
+#: sweep), and the most runs it puts in one task (progress granularity; work lost with a worker).
+TASKS_PER_THREAD = 8
+MAX_RUNS_PER_TASK = 32
+
+
+def chunk_size(runs: int, threads: int) -> int:
+    """Runs per task: few enough that each worker thread gets about
+    :data:`TASKS_PER_THREAD` tasks, at most :data:`MAX_RUNS_PER_TASK`. A run of a 10-20 s
+    flight takes tens of milliseconds, as long as the scheduler's and the client's round trip
+    for a task on a busy machine: one run per task would measure Dask, not the sweep."""
+    return max(1, min(MAX_RUNS_PER_TASK, -(-runs // max(threads * TASKS_PER_THREAD, 1))))
+
+
+def run_tasks(tasks: Sequence[RunTask]) -> list[dict[str, Any]]:
+    """:func:`run_task` on each task, the rows concatenated (one cluster task)."""
+    return [row for task in tasks for row in run_task(task)]
+
+
 @dataclass
 class SweepSummary:
     """total rows of the spec, skipped (already present), computed now, failed tasks (and
@@ -563,10 +583,12 @@ def run_sweep(
     *,
     progress: Callable[[int, int], None] | None = None,
     retries: int = 2,
+    runs_per_task: int | None = None,
 ) -> SweepSummary:
     """Run every row of ``spec`` not yet in the dataset directory ``out``.
 
-    ``client``: a ``dask.distributed.Client`` (None: run here, serially). Each task is
+    ``client``: a ``dask.distributed.Client`` (None: run here, serially). The runs go to
+    the cluster in tasks of ``runs_per_task`` runs (default :func:`chunk_size`), each
     submitted with ``retries`` (a task that raises is retried; a task whose worker dies is
     rescheduled by the scheduler); only completed results are written. ``progress(done,
     total)`` counts rows, the skipped ones included. On KeyboardInterrupt the rows
@@ -596,18 +618,20 @@ def run_sweep(
         else:
             from distributed import as_completed
 
+            threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+            size = chunk_size(len(tasks), threads) if runs_per_task is None else runs_per_task
+            chunks = [tuple(tasks[i:i + size]) for i in range(0, len(tasks), size)]
             futures = [
-                client.submit(run_task, task, key=f"windahrs-sweep-{task.estimators[0][1]}", retries=retries,
+                client.submit(run_tasks, chunk, key=f"windahrs-sweep-{chunk[0].estimators[0][1]}", retries=retries,
                               pure=False)
-                for task in tasks
+                for chunk in chunks
             ]
-            what = {f.key: t for f, t in zip(futures, tasks, strict=True)}
+            what = {f.key: c for f, c in zip(futures, chunks, strict=True)}
             for fut in as_completed(futures):
                 if fut.status == "finished":
                     take(fut.result())
                 else:
-                    t = what[fut.key]
-                    failed.append(f"{t.scenario.as_dict()} seed {t.seed}: {fut.exception()!r}")
+                    failed += [f"{t.scenario.as_dict()} seed {t.seed}: {fut.exception()!r}" for t in what[fut.key]]
                 fut.release()
     finally:
         store.flush()
