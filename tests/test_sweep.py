@@ -119,6 +119,13 @@ def test_spec_grid_and_list_and_ids() -> None:
     assert run_id(sc, relabelled, 3, "1") == run_id(sc, est, 3, "1")  # a label is a name, not a parameter
 
 
+def test_example_spec_is_valid() -> None:
+    from windahrs.experiments.sweep import load_spec
+
+    spec = load_spec(SRC.parent / "examples" / "sweep_quick.toml")
+    assert (len(spec.scenarios), len(spec.estimators), len(spec.seeds), spec.rows) == (3, 3, 5, 45)
+
+
 def test_cli_spec_error_is_one_line_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     spec = tmp_path / "s.toml"
     spec.write_text(tiny().replace("[grid]", "[grid]\ngrade = 'tactical'"))
