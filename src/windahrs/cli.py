@@ -163,6 +163,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     _workers_arg(args)
     workers = args.workers if args.workers is not None or args.scheduler is not None else default_workers()
     serial = args.scheduler is None and workers == 1
+    if not serial and not _have_dask():
+        if args.workers is not None or args.scheduler is not None:
+            raise UsageError(f"--{'workers' if args.workers else 'scheduler'}: {DASK_MISSING}")
+        _note(f"{DASK_MISSING}; running serially")
+        serial = True
     t0 = time.perf_counter()
     with _runs_bar(progress_total(cases, runs, nees_runs), "reproduce") as bar:
         seen: set[str] = set()
@@ -193,6 +198,22 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+DASK_MISSING = "dask distributed is not installed (pip install 'windahrs[dask]')"
+
+
+def _have_dask() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("distributed") is not None and importlib.util.find_spec("pyarrow") is not None
+
+
+def _need_pyarrow() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("pyarrow") is None:
+        raise UsageError("pyarrow is not installed, and sweep results are Parquet (pip install 'windahrs[dask]')")
+
+
 def _workers_arg(args: argparse.Namespace) -> None:
     if args.workers is not None and args.scheduler is not None:
         raise UsageError(f"--workers: a local cluster's size, not used with --scheduler {args.scheduler}; give one")
@@ -207,9 +228,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from windahrs.experiments.sweep import ResultStore, load_spec, plan_tasks, run_sweep
 
     _workers_arg(args)
+    _need_pyarrow()
     spec = load_spec(args.spec)  # every field checked before any work
     todo, _ = plan_tasks(spec, ResultStore(args.out).completed_ids())  # --out: a directory or a new name
     serial = (args.workers == 1 and args.scheduler is None) or not todo  # nothing to do: no cluster
+    if not serial and not _have_dask():
+        raise UsageError(f"{DASK_MISSING}; or run in this process with --workers 1")
     try:
         with _runs_bar(spec.rows, "sweep") as bar:
 
@@ -246,6 +270,7 @@ def _cmd_sweep_report(args: argparse.Namespace) -> int:
     from windahrs.experiments.sweep import read_results
     from windahrs.report.sweep import write_sweep_report
 
+    _need_pyarrow()
     if not args.results.exists():
         raise UsageError(f"results: {args.results} does not exist")
     rows = read_results(args.results).to_pydict()
