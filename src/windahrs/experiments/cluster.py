@@ -23,29 +23,36 @@ class Submit(Protocol):
     def __call__(self, fn: Callable[..., Any], *args: Any) -> Any: ...
 
 
-class _Done:
-    """The result of a call already made (the serial ``submit``)."""
+class _Later:
+    """A call made on the first ``result()`` (the serial ``submit``): in this process, in
+    the order the results are asked for, and only once."""
 
-    __slots__ = ("value",)
+    __slots__ = ("args", "fn", "value")
 
-    def __init__(self, value: Any) -> None:
-        self.value = value
+    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        self.fn: Callable[..., Any] | None = fn
+        self.args = args
+        self.value: Any = None
 
     def result(self) -> Any:
+        if self.fn is not None:
+            self.value = self.fn(*(_resolve(a) for a in self.args))
+            self.fn, self.args = None, ()
         return self.value
 
 
 def _resolve(arg: Any) -> Any:
-    if isinstance(arg, _Done):
-        return arg.value
+    if isinstance(arg, _Later):
+        return arg.result()
     if isinstance(arg, list):
         return [_resolve(a) for a in arg]
     return arg
 
 
-def serial_submit(fn: Callable[..., Any], *args: Any) -> _Done:
-    """Call ``fn(*args)`` now, in this process (handles in ``args`` resolved)."""
-    return _Done(fn(*(_resolve(a) for a in args)))
+def serial_submit(fn: Callable[..., Any], *args: Any) -> _Later:
+    """``fn(*args)`` in this process, when its result is first asked for (handles in ``args``
+    resolved then)."""
+    return _Later(fn, args)
 
 
 def default_workers() -> int:

@@ -167,7 +167,7 @@ def run_reproduction(
     their rows get a ``nees_check`` (:func:`nees_check` over all ``nees_runs``, in blocks of
     ``runs``); every other number comes from the first ``runs`` flights.
     ``progress(label, run, of)`` is called after each estimator run (run 1..of).
-    ``submit`` (default: here, serially, one wind speed at a time): where the work of one
+    ``submit`` (default: here, serially, each piece when its result is needed): where the work of one
     flight (simulation and every case on it), of one bound and of a block of NEES-check
     flights runs, e.g. ``functools.partial(client.submit, pure=False)`` of a Dask client
     (:mod:`windahrs.experiments.cluster`). The results are gathered and combined here in
