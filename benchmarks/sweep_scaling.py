@@ -11,7 +11,9 @@ with Dryden turbulence, ``--seeds`` seeds, estimators mekf and ins-wind, ``pcrb 
 warmed (windahrs imported, the estimators loaded from numba's cache, one short flight run)
 before the clock starts; the time is ``run_sweep`` alone, into a fresh dataset directory:
 scheduling, simulation, estimation, scoring and the Parquet writes. The machine is shared:
-the load average is printed beside the times.
+the load average is printed beside the times, and the CPU seconds the workers and this
+process (client and scheduler) used, with the share of a core each worker got: on a busy
+machine the wall-time efficiency measures the other jobs as much as the sweep.
 """
 
 from __future__ import annotations
@@ -53,17 +55,26 @@ def _warm() -> None:
     run_task(RunTask(sc, 0, tuple((e, "warm") for e in spec.estimators), False, windahrs_version()))
 
 
-def measure(workers: int, spec: Any, out: Path) -> float:
+def _cpu() -> float:
+    """CPU seconds (user + system) of the calling process."""
+    t = os.times()
+    return t.user + t.system
+
+
+def measure(workers: int, spec: Any, out: Path) -> tuple[float, float, float]:
+    """Wall time s; CPU s of the workers; CPU s of this process (client and scheduler)."""
     from windahrs.experiments.cluster import open_client
     from windahrs.experiments.sweep import run_sweep
 
     with open_client(workers=workers) as client:
         client.run(_warm)  # on every worker
+        w0, c0 = sum(client.run(_cpu).values()), _cpu()
         t0 = time.perf_counter()
         summary = run_sweep(spec, out, client)
         seconds = time.perf_counter() - t0
+        w1, c1 = sum(client.run(_cpu).values()), _cpu()
     assert summary.computed == spec.rows and not summary.failed, summary
-    return seconds
+    return seconds, w1 - w0, c1 - c0
 
 
 def main() -> None:
@@ -87,10 +98,11 @@ def main() -> None:
     for n in (int(w) for w in args.workers.split(",")):
         with tempfile.TemporaryDirectory() as tmp:
             load = os.getloadavg()[0]
-            t = measure(n, spec, Path(tmp) / "r.parquet")
+            t, cpu_w, cpu_c = measure(n, spec, Path(tmp) / "r.parquet")
         times[n] = t
         print(f"{n} worker(s): {t:7.1f} s  {spec.rows / t:7.1f} rows/s  {flights / t:6.2f} flights/s  "
-              f"{spec.rows * steps / t / 1e6:6.3f} M filter-steps/s  (load average before: {load:.2f})")
+              f"{spec.rows * steps / t / 1e6:6.3f} M filter-steps/s  (load average before: {load:.2f}); "
+              f"CPU s: workers {cpu_w:.1f} ({cpu_w / t / n:.0%} of a core each), client+scheduler {cpu_c:.1f}")
     if 1 in times and 2 in times:
         eff = times[1] / (2 * times[2])
         print(f"speed-up 1 -> 2 workers: {times[1] / times[2]:.2f}x, efficiency t1/(2 t2) = {eff:.2f}")
