@@ -344,8 +344,8 @@ class RunTask:
     version: str
 
 
-#: Total-error threshold of the convergence time, deg: the reproduction's.
 def _convergence_deg() -> float:
+    """Total-error threshold of the convergence time, deg: the reproduction's."""
     from windahrs.experiments.reproduce import CONVERGENCE_DEG
 
     return CONVERGENCE_DEG
