@@ -40,6 +40,7 @@ import os
 import time
 import tomllib
 import uuid
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -367,8 +368,11 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
     body-axis RMSE over the second half / sqrt(PCRB) of this flight
     (:func:`windahrs.pcrb.reproduction_bound`) for the estimators the reproduction bounds
     (ekf7, mekf, usque: "gravity"; ins-wind: "ins"), NaN for every other estimator or with
-    ``pcrb = false``. An estimator that raises gives a row with ``error`` set and NaN metrics.
+    ``pcrb = false``. An estimator that raises gives a row with ``error`` set and NaN metrics;
+    the estimator's warnings (:class:`~windahrs.estimate.EstimatorWarning`: resets, gated-out
+    sensors) are kept in ``warnings``, not printed.
     """
+    from windahrs.estimate import EstimatorWarning
     from windahrs.metrics import attitude_errors, convergence_index, nees_attitude, score
     from windahrs.pcrb import reproduction_bound
     from windahrs.rotation import quat_conj, quat_log, quat_mul
@@ -384,18 +388,21 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"run_id": rid, **task.scenario.as_dict(), "seed": task.seed, "estimator": spec.label,
                                "estimator_name": spec.name, "estimator_params": json.dumps(spec.as_dict()["params"],
                                                                                            sort_keys=True),
-                               "version": task.version, "error": ""}
+                               "version": task.version, "error": "", "warnings": ""}
         nan3 = dict.fromkeys(("rmse_roll_deg", "rmse_pitch_deg", "rmse_yaw_deg", "rmse_tilt_deg", "rmse_total_deg",
                               "convergence_s", "nees_mean", "pcrb_ratio_x", "pcrb_ratio_y", "pcrb_ratio_z"), math.nan)
         row.update(nan3)
         t0 = time.perf_counter()
         try:
-            est = spec.build().run(flight)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", EstimatorWarning)
+                est = spec.build().run(flight)
         except ValueError as exc:
             row.update(error=str(exc), seconds=time.perf_counter() - t0, sim_seconds=sim_s)
             rows.append(row)
             continue
         row["seconds"] = time.perf_counter() - t0
+        row["warnings"] = "; ".join(str(w.message) for w in caught if issubclass(w.category, EstimatorWarning))
         row["sim_seconds"] = sim_s
         sc = score(est, flight)
         row.update(rmse_roll_deg=sc.rmse_from50_deg[0], rmse_pitch_deg=sc.rmse_from50_deg[1],
@@ -434,6 +441,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
     ("rmse_tilt_deg", "float64"), ("rmse_total_deg", "float64"), ("convergence_s", "float64"),
     ("nees_mean", "float64"), ("pcrb_ratio_x", "float64"), ("pcrb_ratio_y", "float64"), ("pcrb_ratio_z", "float64"),
     ("seconds", "float64"), ("sim_seconds", "float64"), ("version", "string"), ("error", "string"),
+    ("warnings", "string"),
 )
 PART_GLOB = "part-*.parquet"
 

@@ -77,7 +77,9 @@ def write_sweep_report(rows: dict[str, list[Any]], out: Path, *, title: str = "w
         "which the total error stays under 5 deg; NEES: attitude and gyro bias (6-dim), second half, mean over "
         "seeds (expected 6 when consistent); RMSE/sqrt(PCRB): body axes x/y/z, second half, only for the "
         "estimators `windahrs reproduce` bounds (ekf7, mekf, usque, ins-wind) and only for sweeps run with "
-        "pcrb = true; '–' where not applicable. Rows whose estimator raised are counted under 'failed'."
+        "pcrb = true; '–' where not applicable. Rows whose estimator raised are counted under 'failed', runs "
+        "whose estimator warned (a reset, a sensor mostly gated out; the Parquet column 'warnings' has the "
+        "messages) under 'with warnings'."
     )
     md += [intro, ""]
     sections.append(Section("What was run", paragraphs=[intro]))
@@ -102,7 +104,7 @@ def write_sweep_report(rows: dict[str, list[Any]], out: Path, *, title: str = "w
 
                 ratio = [_nanmean(col(f"pcrb_ratio_{a}")) for a in "xyz"]
                 table_rows.append([
-                    est, w, len(ok), len(ii) - len(ok),
+                    est, w, len(ok), len(ii) - len(ok), sum(bool(rows["warnings"][i]) for i in ok),
                     _spread(col("rmse_total_deg")), _spread(col("rmse_tilt_deg")),
                     " / ".join(f"{v:.3f}" for v in (_nanmean(col(f"rmse_{a}_deg")) or math.nan
                                                     for a in ("roll", "pitch", "yaw"))) if ok else None,
@@ -111,7 +113,7 @@ def write_sweep_report(rows: dict[str, list[Any]], out: Path, *, title: str = "w
                     _nanmean(col("seconds")),
                 ])
         table = Table(
-            ["estimator", "wind [m/s]", "runs", "failed", "total RMSE [deg]", "tilt RMSE [deg]",
+            ["estimator", "wind [m/s]", "runs", "failed", "with warnings", "total RMSE [deg]", "tilt RMSE [deg]",
              "RMSE r/p/y [deg], mean", "convergence [s], median", "NEES, mean", "RMSE/sqrt(PCRB) x/y/z",
              "run time [s], mean"],
             table_rows, caption=name,
