@@ -64,6 +64,8 @@ P = "--params {t}/p.toml"
 HUGE_INT = "1" + "0" * 29  # a 30-digit number
 BOOL_NOISE = toml("[windahrs]\ngyro_noise = true\n")
 HUGE_NOISE = toml("[windahrs]\ngyro_noise = 1e60\n")
+SWEEP = '[sweep]\nseeds = 1\n[grid]\nvehicle = "fixedwing"\nwind = [0.0]\nduration = 5.0\n[[estimator]]\nname = "mekf"\n'
+
 
 CASES: dict[str, Case] = {
     # ---- simulate: numbers --------------------------------------------------------------------------------
@@ -118,6 +120,22 @@ CASES: dict[str, Case] = {
     "sim-csv-no-parent": Case("simulate --duration 2 --csv --out {t}/nodir/c", "nodir does not exist"),
     "sim-csv-readonly": Case("simulate --duration 2 --csv --out {ro}/c", "--out"),
     "sim-csv-huge": Case("simulate --duration 1e9 --csv --out {t}/c", "--duration"),
+    # ---- sweep and sweep-report --------------------------------------------------------------------------------
+    "swp-no-spec": Case("sweep --out {t}/r.parquet", "SPEC.toml"),
+    "swp-spec-missing": Case("sweep {t}/nope.toml --out {t}/r.parquet", "nope.toml"),
+    "swp-spec-dir": Case("sweep {t}/adir --out {t}/r.parquet", "adir", A_DIR),
+    "swp-spec-not-toml": Case("sweep {t}/s.toml --out {t}/r.parquet", "s.toml", toml("seeds = [\n", "s.toml")),
+    "swp-spec-unknown-key": Case("sweep {t}/s.toml --workers 1 --out {t}/r.parquet", "bogus",
+                                 toml(SWEEP.replace("seeds = 1", "seeds = 1\nbogus = 1"), "s.toml")),
+    "swp-workers-zero": Case("sweep {t}/s.toml --workers 0 --out {t}/r.parquet", "--workers",
+                             toml("seeds = [0]\n", "s.toml")),
+    "swp-workers-and-scheduler": Case("sweep {t}/s.toml --workers 2 --scheduler tcp://127.0.0.1:1 --out {t}/r",
+                                      "--workers", toml("seeds = [0]\n", "s.toml")),
+    "swp-out-parent-file": Case("sweep {t}/s.toml --workers 1 --out {t}/afile/r", "afile",
+                                (*A_FILE, ("s.toml", SWEEP))),
+    "swp-out-readonly": Case("sweep {t}/s.toml --workers 1 --out {ro}/r", "--out", toml(SWEEP, "s.toml")),
+    "swr-results-missing": Case("sweep-report {t}/nope.parquet --out {t}/rep", "nope.parquet"),
+    "swr-no-out": Case("sweep-report {t}/adir", "--out", A_DIR),
     # ---- faults ---------------------------------------------------------------------------------------------
     "flt-no-out": Case("faults", "--out"),
     "flt-out-empty": Case("faults --out ''", "--out"),
@@ -442,7 +460,7 @@ def test_enough_cases() -> None:
     assert len(CASES) >= 150
     commands = {c.argv.split()[0] for c in CASES.values() if c.argv}
     assert commands >= {"simulate", "info", "filters", "estimate", "compare", "report", "experiment", "reproduce",
-                        "bench-data", "faults"}
+                        "bench-data", "faults", "sweep", "sweep-report"}
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -160,6 +160,13 @@ class _Outputs:
         self._folders.append((top, before))
         return path
 
+    def kept_folder(self, path: Path, option: str) -> Path:
+        """A folder checked like :meth:`folder` but kept on failure and interrupt: what was
+        completed in it is the point (a sweep's rows, to resume from)."""
+        self.folder(path, option)
+        self._folders.pop()
+        return path
+
     def new_folder(self, path: Path, option: str) -> Path:
         """A folder the command's writer creates itself, whole or not at all (it must not
         exist yet): its parent checked, the folder removed on failure."""
@@ -386,8 +393,10 @@ def reproduce_nees_runs(runs: int, quick: bool, nees_runs: int | None) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    import functools
     import time
 
+    from windahrs.experiments.cluster import default_workers, open_client
     from windahrs.experiments.reproduce import (
         NEES_CHECK_LABEL,
         check_reproduction_size,
@@ -409,6 +418,14 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     check_reproduction_size(runs, args.duration, len(cases))
     args.outputs.folder(args.out, "--out")
     checked = sum(c.bound is not None for c in cases)
+    _workers_arg(args)
+    workers = args.workers if args.workers is not None or args.scheduler is not None else default_workers()
+    serial = args.scheduler is None and workers == 1
+    if not serial and not _have_dask():
+        if args.workers is not None or args.scheduler is not None:
+            raise UsageError(f"--{'workers' if args.workers else 'scheduler'}: {DASK_MISSING}")
+        _note(f"{DASK_MISSING}; running serially")
+        serial = True
     t0 = time.perf_counter()
     with _runs_bar(progress_total(cases, runs, nees_runs), "reproduce") as bar:
         seen: set[str] = set()
@@ -418,9 +435,14 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             bar.set_postfix_str(f"case {len(seen)}/{len(cases)} {label}, run {run}/{of}", refresh=False)
             bar.update(1)
 
-        res = run_reproduction(
-            runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs
-        )
+        if serial:
+            res = run_reproduction(runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs)
+        else:
+            with open_client(args.scheduler, None if args.scheduler else workers) as client:
+                res = run_reproduction(
+                    runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs,
+                    submit=functools.partial(client.submit, pure=False),
+                )
     files = write_reproduction(res, args.out)
     extra = f", NEES check of {checked} cases on {nees_runs} runs" if nees_runs > runs else ""
     print(f"{len(cases)} cases x {runs} runs{extra} in {time.perf_counter() - t0:.0f} s")
@@ -431,6 +453,90 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     for c in claims(res):
         print(f"[{'holds' if c['holds'] else 'does not hold'}] {c['claim']}: {c['numbers']}")
     print(f"open {args.out / 'report.html'} in a browser for the tables and figures")
+    return 0
+
+
+DASK_MISSING = "dask distributed is not installed (pip install 'windahrs[dask]')"
+
+
+def _have_dask() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("distributed") is not None and importlib.util.find_spec("pyarrow") is not None
+
+
+def _need_pyarrow() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("pyarrow") is None:
+        raise UsageError("pyarrow is not installed, and sweep results are Parquet (pip install 'windahrs[dask]')")
+
+
+def _workers_arg(args: argparse.Namespace) -> None:
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError(f"--workers: a local cluster's size, not used with --scheduler {args.scheduler}; give one")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers: expected an integer >= 1, found {args.workers}")
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from windahrs.experiments.cluster import open_client
+    from windahrs.experiments.sweep import ResultStore, load_spec, plan_tasks, run_sweep
+
+    _workers_arg(args)
+    _need_pyarrow()
+    spec = load_spec(args.spec)  # every field checked before any work
+    args.outputs.kept_folder(args.out, "--out")  # (its rows are kept on failure: a rerun resumes)
+    todo, _ = plan_tasks(spec, ResultStore(args.out).completed_ids())  # --out: a directory or a new name
+    serial = (args.workers == 1 and args.scheduler is None) or not todo  # nothing to do: no cluster
+    if not serial and not _have_dask():
+        raise UsageError(f"{DASK_MISSING}; or run in this process with --workers 1")
+    try:
+        with _runs_bar(spec.rows, "sweep") as bar:
+
+            def step(done: int, total: int) -> None:
+                if bar.n == 0 and bar.initial == 0 and done > 0:  # rows already present: not in the rate
+                    bar.initial = bar.n = done
+                    bar.refresh()
+                else:
+                    bar.update(done - bar.n)
+
+            with contextlib.nullcontext(None) if serial else open_client(args.scheduler, args.workers) as client:
+                summary = run_sweep(spec, args.out, client, progress=step)
+    except KeyboardInterrupt:
+        kept = len(ResultStore(args.out).completed_ids())
+        print(f"windahrs sweep: interrupted; {kept} of {spec.rows} rows are in {args.out}, rerun to resume",
+              file=sys.stderr)
+        return 130
+    print(
+        f"{summary.computed} rows computed, {summary.skipped} already present, of {summary.total} "
+        f"({len(spec.scenarios)} scenarios x {len(spec.estimators)} estimators x {len(spec.seeds)} seeds) "
+        f"in {summary.seconds:.0f} s; results in {summary.out}"
+    )
+    if summary.errors:
+        _note(f"{summary.errors} rows record an estimator error (column 'error')")
+    for f in summary.failed:
+        _note(f"run failed: {f}")
+    if summary.failed:
+        _note(f"{len(summary.failed)} runs failed and are not in {summary.out}; rerun to retry them")
+        return 1
+    return 0
+
+
+def _cmd_sweep_report(args: argparse.Namespace) -> int:
+    from windahrs.experiments.sweep import read_results
+    from windahrs.report.sweep import write_sweep_report
+
+    _need_pyarrow()
+    if not args.results.exists():
+        raise UsageError(f"results: {args.results} does not exist")
+    rows = read_results(args.results).to_pydict()
+    args.outputs.folder(args.out, "--out")
+    files = write_sweep_report(rows, args.out, title=f"windahrs sweep: {args.results.name}")
+    for f in files:
+        print(f"wrote {f}")
     return 0
 
 
@@ -840,7 +946,43 @@ def _parser() -> argparse.ArgumentParser:
                    "no extra flights); the check is also reported per block of the runs per case")
     r.add_argument("--duration", type=_number, default=20.0, metavar="S", help="seconds per run (default 20)")
     r.add_argument("--out", type=_path, required=True, metavar="DIR", help="output directory")
+    r.add_argument("--workers", type=_count, default=None, metavar="N",
+                   help="run on a local Dask cluster of N processes (default: one per core); 1 runs serially in this "
+                   "process. The results are the same bit for bit")
+    r.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="run on this running Dask scheduler's workers instead of a local cluster")
     r.set_defaults(func=_cmd_reproduce)
+
+    sw = sub.add_parser(
+        "sweep",
+        help="many simulated flights x estimators from a TOML spec, on Dask, into Parquet (resumable)",
+        description="Run every scenario x estimator x seed of a TOML sweep spec (docs/sweep.md) on a Dask cluster "
+        "and append one row per run and estimator to a Parquet dataset directory: the parameters, RMSE per axis, "
+        "tilt and total, convergence time, NEES, the PCRB ratio where a bound applies, run time and a "
+        "content-addressed run id. Rerunning resumes: rows already present are skipped. Ctrl-C keeps the rows "
+        "finished so far.",
+    )
+    sw.add_argument("spec", type=_path, metavar="SPEC.toml", help="the sweep specification")
+    sw.add_argument("--out", type=_path, required=True, metavar="RESULTS.parquet",
+                    help="the Parquet dataset directory (created; part files are added to it)")
+    sw.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                    help="submit to this running Dask scheduler instead of starting a local cluster")
+    sw.add_argument("--workers", type=_count, default=None, metavar="N",
+                    help="local cluster size, one process per worker with one thread (default: one per core); "
+                    "1 runs in this process without Dask")
+    sw.set_defaults(func=_cmd_sweep)
+
+    sr = sub.add_parser(
+        "sweep-report",
+        help="tables and figures of a sweep's Parquet results in one HTML page",
+        description="Read a sweep's Parquet dataset and write DIR/report.html (self-contained), DIR/summary.md "
+        "and PNG figures: per scenario family, a table of estimator x wind speed (mean and spread over seeds of "
+        "the RMSE, convergence, NEES, PCRB ratio) and RMSE against wind speed per estimator with the spread over "
+        "seeds.",
+    )
+    sr.add_argument("results", type=_path, metavar="RESULTS.parquet", help="a sweep's dataset directory")
+    sr.add_argument("--out", type=_path, required=True, metavar="DIR", help="output directory")
+    sr.set_defaults(func=_cmd_sweep_report)
 
     b = sub.add_parser(
         "bench-data",

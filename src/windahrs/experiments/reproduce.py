@@ -9,6 +9,7 @@ the per-run error series the figures are drawn from.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
+from windahrs.experiments.cluster import Submit, serial_submit
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
 from windahrs.metrics import attitude_errors, chi2_band, convergence_index, nees_attitude
@@ -169,6 +171,7 @@ def run_reproduction(
     progress: Callable[[str, int, int], None] | None = None,
     bound_fn: Callable[[Sequence[Flight], str], F64 | None] | None = reproduction_bound,
     nees_runs: int | None = None,
+    submit: Submit | None = None,
 ) -> ReproductionResult:
     """Run every case on ``runs`` flights per wind speed.
 
@@ -181,6 +184,11 @@ def run_reproduction(
     their rows get a ``nees_check`` (:func:`nees_check` over all ``nees_runs``, in blocks of
     ``runs``); every other number comes from the first ``runs`` flights.
     ``progress(label, run, of)`` is called after each estimator run (run 1..of).
+    ``submit`` (default: here, serially, each piece when its result is needed): where the work of one
+    flight (simulation and every case on it), of one bound and of a block of NEES-check
+    flights runs, e.g. ``functools.partial(client.submit, pure=False)`` of a Dask client
+    (:mod:`windahrs.experiments.cluster`). The results are gathered and combined here in
+    the serial order, so the numbers are the same bit for bit wherever the work ran.
     """
     if runs < 1:
         raise ValueError(f"runs: expected >= 1, found {runs}")
@@ -191,34 +199,52 @@ def run_reproduction(
 
     cases = list(cases) if cases is not None else default_cases(names())
     check_reproduction_size(runs, duration, len(cases))
-    estimators = {(c.wind, c.filter): _estimator(c) for c in cases}
+    for c in cases:  # a bad spec fails here, before any simulation
+        _estimator(c)
     res = ReproductionResult(
         meta={"runs": runs, "nees_runs": nees_runs, "duration_s": duration, "convergence_deg": CONVERGENCE_DEG}
     )
     t_start = time.perf_counter()
-    for w in sorted({c.wind for c in cases}):
-        flights = [
-            simulate(PaperScenario(duration=duration, wind_speed=w), np.random.default_rng(flight_seed(w, r)))
-            for r in range(runs)
-        ]
-        n = len(flights[0].imu.t)
+    winds = sorted({c.wind for c in cases})
+    serial = submit is None
+    put: Submit = serial_submit if submit is None else submit
+
+    def submit_wind(w: float) -> _WindWork:
+        cw = tuple(c for c in cases if c.wind == w)
+        models = sorted({c.bound for c in cw if c.bound is not None}) if bound_fn is not None else []
+        checked = tuple(c for c in cw if c.bound is not None)
+        return _WindWork(
+            # the long bound tasks first: a cluster starts them early
+            bounds={m: put(_bound_task, bound_fn, duration, w, runs, m) for m in models},
+            flights=[put(_flight_task, duration, w, r, cw) for r in range(runs)],
+            nees=[put(_nees_task, duration, w, block, checked) for block in _blocks(runs, nees_runs)]
+            if checked and nees_runs > runs else [],
+        )
+
+    pending = {} if serial else {w: submit_wind(w) for w in winds}  # a cluster gets all the work at once
+    for w in winds:
+        work = pending.pop(w) if w in pending else submit_wind(w)
+        cw = [c for c in cases if c.wind == w]
+        per_run = []
+        for r, handle in enumerate(work.flights):
+            out = handle.result()
+            per_run.append(out)
+            if progress:
+                for c in cw:
+                    progress(case_key(c), r + 1, runs)
+        n = len(per_run[0][0][0])
         bounds: dict[str, F64 | None] = {}
-        for c in (c for c in cases if c.wind == w):
+        for k, c in enumerate(cw):
             key = case_key(c)
             euler = np.empty((runs, n, 3))
             body = np.empty((runs, n, 3))
             total = np.empty((runs, n))
             nees = []
-            for r, fl in enumerate(flights):
-                est = estimators[c.wind, c.filter].run(fl)
-                err = attitude_errors(est, fl)
-                euler[r] = np.degrees(err.euler)
-                body[r] = _body_errors_deg(est, fl)
-                total[r] = np.degrees(err.total)
-                if c.bound is not None and est.cov is not None:
-                    nees.append(nees_attitude(est, fl))
-                if progress:
-                    progress(key, r + 1, runs)
+            for r in range(runs):
+                e, b, t, ne = per_run[r][k]
+                euler[r], body[r], total[r] = e, b, t
+                if ne is not None:
+                    nees.append(ne)
             res.errors[key] = euler
             steady = slice(n // 2, None)
             row: dict[str, Any] = {
@@ -237,23 +263,82 @@ def run_reproduction(
             }
             if c.bound is not None and bound_fn is not None:
                 if c.bound not in bounds:
-                    bounds[c.bound] = bound_fn(flights, c.bound)
+                    bounds[c.bound] = work.bounds[c.bound].result()
                     if bounds[c.bound] is not None:
                         res.bounds[f"{w:g} m/s | {c.bound}"] = bounds[c.bound]  # type: ignore[assignment]
-                b = bounds[c.bound]
-                if b is not None:
+                bnd = bounds[c.bound]
+                if bnd is not None:
                     rmse_body = np.sqrt(np.mean(body[:, steady] ** 2, axis=(0, 1)))
-                    row["pcrb_ratio"] = [float(v) for v in rmse_body / np.sqrt(np.mean(b[steady] ** 2, axis=0))]
+                    row["pcrb_ratio"] = [float(v) for v in rmse_body / np.sqrt(np.mean(bnd[steady] ** 2, axis=0))]
             if nees:
                 res.nees[key] = np.array(nees)
                 summary = nees_summary(res.nees[key])
                 row["nees_in_band"], row["nees_mean"] = summary["in_band"], summary["nees_mean"]
             res.cases.append(row)
-        if nees_runs > runs:
-            _extend_nees(res, [c for c in cases if c.wind == w and case_key(c) in res.nees],
-                         estimators, runs, nees_runs, duration, progress)
+        del per_run
+        if work.nees:
+            _extend_nees(res, [c for c in cw if c.bound is not None], work.nees, runs, nees_runs, progress)
     res.meta["seconds"] = time.perf_counter() - t_start
     return res
+
+
+@dataclass
+class _WindWork:
+    """Handles (``submit``'s results) of one wind speed's work."""
+
+    bounds: dict[str, Any]
+    flights: list[Any]
+    nees: list[Any]
+
+
+#: Flights per NEES-check task: enough work per task to hide a cluster's per-task cost.
+NEES_BLOCK = 10
+
+
+def _blocks(runs: int, nees_runs: int) -> list[range]:
+    return [range(a, min(a + NEES_BLOCK, nees_runs)) for a in range(runs, nees_runs, NEES_BLOCK)]
+
+
+def _flight(duration: float, w: float, r: int) -> Flight:
+    return simulate(PaperScenario(duration=duration, wind_speed=w), np.random.default_rng(flight_seed(w, r)))
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_estimator(c: Case) -> Any:
+    """One estimator per case and process (they keep no state between runs)."""
+    return _estimator(c)
+
+
+def _flight_task(duration: float, w: float, r: int, cases: Sequence[Case]) -> list[tuple[F64, F64, F64, F64 | None]]:
+    """Flight ``r`` at wind ``w`` and every case on it: per case, the Euler errors (N, 3)
+    deg, body-axis errors (N, 3) deg, total error (N,) deg and, for a physically tuned
+    filter with a covariance, the NEES (N,)."""
+    fl = _flight(duration, w, r)
+    out = []
+    for c in cases:
+        est = _cached_estimator(c).run(fl)
+        err = attitude_errors(est, fl)
+        ne = nees_attitude(est, fl) if c.bound is not None and est.cov is not None else None
+        out.append((np.degrees(err.euler), _body_errors_deg(est, fl), np.degrees(err.total), ne))
+    return out
+
+
+def _bound_task(
+    bound_fn: Callable[[Sequence[Flight], str], F64 | None], duration: float, w: float, runs: int, model: str
+) -> F64 | None:
+    """``bound_fn`` over the ``runs`` flights at wind ``w`` (simulated again: cheaper than moving them)."""
+    return bound_fn([_flight(duration, w, r) for r in range(runs)], model)
+
+
+def _nees_task(duration: float, w: float, block: range, cases: Sequence[Case]) -> list[list[F64 | None]]:
+    """Per flight of ``block`` at wind ``w``, the NEES (N,) of each case (None for an
+    estimate without covariance)."""
+    out: list[list[F64 | None]] = []
+    for r in block:
+        fl = _flight(duration, w, r)
+        ests = [_cached_estimator(c).run(fl) for c in cases]
+        out.append([nees_attitude(e, fl) if e.cov is not None else None for e in ests])
+    return out
 
 
 #: Suffix of the progress label of a run that only feeds the NEES check.
@@ -269,27 +354,34 @@ def progress_total(cases: Sequence[Case], runs: int, nees_runs: int) -> int:
 def _extend_nees(
     res: ReproductionResult,
     cases: Sequence[Case],
-    estimators: dict[tuple[float, str], Any],
+    blocks: Sequence[Any],
     runs: int,
     nees_runs: int,
-    duration: float,
     progress: Callable[[str, int, int], None] | None,
 ) -> None:
-    """The consistency check on more flights: run ``cases`` (one wind speed) on flights
-    ``runs..nees_runs-1``, one flight in memory at a time, and add ``nees_check`` to their rows."""
+    """The consistency check on more flights: the NEES of ``cases`` (one wind speed, the
+    physically tuned ones) on flights ``runs..nees_runs-1`` (``blocks``: handles of
+    :func:`_nees_task` over ``cases``), appended to the series of those with a NEES, and
+    ``nees_check`` added to their rows."""
     if not cases:
         return
     w = cases[0].wind
     more: dict[str, list[F64]] = {case_key(c): [] for c in cases}
-    for r in range(runs, nees_runs):
-        fl = simulate(PaperScenario(duration=duration, wind_speed=w), np.random.default_rng(flight_seed(w, r)))
-        for c in cases:
-            key = case_key(c)
-            more[key].append(nees_attitude(estimators[c.wind, c.filter].run(fl), fl))
-            if progress:
-                progress(key + NEES_CHECK_LABEL, r + 1, nees_runs)
+    r = runs
+    for handle in blocks:
+        for per_case in handle.result():
+            for c, ne in zip(cases, per_case, strict=True):
+                key = case_key(c)
+                if key not in res.nees or ne is None:
+                    continue
+                more[key].append(ne)
+                if progress:
+                    progress(key + NEES_CHECK_LABEL, r + 1, nees_runs)
+            r += 1
     for c in cases:
         key = case_key(c)
+        if key not in res.nees:
+            continue
         res.nees[key] = np.vstack([res.nees[key], np.array(more[key])])
         row = next(x for x in res.cases if x["wind"] == w and x["filter"] == c.filter)
         row["nees_check"] = nees_check(res.nees[key], runs)

@@ -19,6 +19,7 @@ from windahrs.report.figures import (
     error_vs_sample_png,
     grouped_bars_png,
     timeseries_png,
+    versus_wind_png,
 )
 from windahrs.report.html import (
     Image,
@@ -42,6 +43,7 @@ __all__ = [
     "markdown_table",
     "render_html",
     "timeseries_png",
+    "versus_wind_png",
     "write_html",
     "write_text",
 ]

@@ -32,6 +32,7 @@ __all__ = [
     "error_vs_sample_png",
     "grouped_bars_png",
     "timeseries_png",
+    "versus_wind_png",
 ]
 
 F64 = NDArray[np.float64]
@@ -273,6 +274,43 @@ def grouped_bars_png(
         ax.set_yscale("log")
         _plain_log_labels(ax)
     _legend(fig, ax)
+    return _finish(fig, title)
+
+
+def versus_wind_png(
+    wind: ArrayLike,
+    values: Mapping[str, ArrayLike],
+    ylabel: str,
+    title: str,
+) -> bytes:
+    """A metric against wind speed, one colour per label: the mean over runs at each wind
+    speed as a line with markers, the 10-90 % spread over runs shaded and every run a dot.
+    wind (M,) m/s, sorted; values: label -> (M, runs) with NaN for a missing run (runs may
+    differ per label). ylabel with unit. Returns PNG bytes."""
+    x = _as_float(wind, "wind")
+    if x.ndim != 1 or x.size == 0:
+        raise ValueError(f"wind: expected a non-empty 1-d array, found shape {x.shape}")
+    if not values:
+        raise ValueError("values: expected at least one labelled array, found none")
+    fig, axes = _new_figure(1)
+    ax = axes[0]
+    for k, (label, v) in enumerate(values.items()):
+        y = _as_float(v, f"values[{label!r}]")
+        if y.ndim != 2 or y.shape[0] != x.size:
+            raise ValueError(f"values[{label!r}]: expected shape ({x.size}, runs), found {y.shape}")
+        color = f"C{k % 10}"
+        rows = [r[np.isfinite(r)] for r in y]
+        has = np.array([r.size > 0 for r in rows])
+        mean = np.array([r.mean() if r.size else np.nan for r in rows])
+        lo = np.array([np.percentile(r, _BAND[0]) if r.size else np.nan for r in rows])
+        hi = np.array([np.percentile(r, _BAND[1]) if r.size else np.nan for r in rows])
+        ax.plot(x[has], mean[has], "o-", color=color, label=label, linewidth=1.5, markersize=4)
+        ax.fill_between(x[has], lo[has], hi[has], color=color, alpha=0.15, linewidth=0)
+        for xi, r in zip(x, rows, strict=True):
+            ax.plot(np.full(r.size, xi), r, ".", color=color, alpha=0.35, markersize=3)
+    ax.set_xlabel("wind W20 [m/s]")
+    ax.set_ylabel(ylabel)
+    _legend(fig, ax, title=f"mean over runs; shaded {_BAND[0]:g}-{_BAND[1]:g} %; dots: runs")
     return _finish(fig, title)
 
 
