@@ -64,7 +64,8 @@ P = "--params {t}/p.toml"
 HUGE_INT = "1" + "0" * 29  # a 30-digit number
 BOOL_NOISE = toml("[windahrs]\ngyro_noise = true\n")
 HUGE_NOISE = toml("[windahrs]\ngyro_noise = 1e60\n")
-SWEEP = '[sweep]\nseeds = 1\n[grid]\nvehicle = "fixedwing"\nwind = [0.0]\nduration = 5.0\n[[estimator]]\nname = "mekf"\n'
+SWEEP = ('[sweep]\nseeds = 1\n[grid]\nvehicle = "fixedwing"\nwind = [0.0]\nduration = 5.0\n'
+         '[[estimator]]\nname = "mekf"\n')
 
 
 CASES: dict[str, Case] = {
