@@ -22,8 +22,9 @@ the prediction. It is held, and the last propagated sample is propagated in its 
    impact's ringing), propagated one sample late rather than lost: its step's excess
    rotation (and, for the INS, velocity increment) is added to the state then.
 
-A dropped sample may still have been motion: what it would have turned the attitude (and
-moved the INS velocity) by is added to their spread as a held sample's is
+A dropped sample may still have been motion: what it would have turned the attitude by (at
+most as much as the gate lets motion be) and moved the INS velocity by is added to their
+spread as a held sample's is
 (:func:`windahrs.core.predict.add_unmeasured_motion`), so that a wrong verdict costs a
 correction by the aiding, not a lasting error. The recent changes' mean square is taken over
 every sample, each change counted at most at the gate (a spike does not open the gate for the
@@ -180,11 +181,19 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
             dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
         dropw, dropf = flags[S_NHELD] & 1 != 0 and not cw, flags[S_NHELD] & 2 != 0 and not cf
         if (dropw or dropf) and flags[S_INIT] == 1:
-            # a dropped sample may still have been motion: what it would have moved the
-            # state by becomes spread (X_DW, X_DF are the kernel's to overwrite at this sample)
+            # a dropped sample may still have been motion: that becomes spread (X_DW, X_DF
+            # are the kernel's to overwrite at this sample); a rotation as large as the gate
+            # lets one be (beyond it no airframe turns in one sample, and a wide-open attitude
+            # follows the next disturbed specific force), the velocity's as the sample says
+            # (what vibration drops: the GNSS takes it back without touching the attitude)
+            pw2 = 0.0
             for a in range(3):
-                x[X_DW + a] = x[X_PEND + a] if dropw else 0.0
-                x[X_DF + a] = x[X_PEND + 3 + a] if dropf else 0.0
+                pw2 += x[X_PEND + a] ** 2
+            sw = math.sqrt(min(1.0, gw2 / pw2)) if dropw and pw2 > 0 else 0.0
+            sf = 1.0 if dropf else 0.0
+            for a in range(3):
+                x[X_DW + a] = sw * x[X_PEND + a]
+                x[X_DF + a] = sf * x[X_PEND + 3 + a]
             add_unmeasured_motion(cfg, x, P, work, x[X_DTPEND])
     gr, ar = prm[R_GYRO_RANGE], prm[R_ACC_RANGE]
     beyond_w, beyond_f = False, False
