@@ -218,10 +218,10 @@ def main(argv: list[str] | None = None) -> int:
             line = (f"{vehicle} {spec}: {len(cs) - len(bad)}/{len(cs)} spikes change the RMSE by less than "
                     f"{TARGET_PCT:g} %")
             if bad:
-                w = max(bad, key=lambda c: abs(c["change_pct"]))
-                line += (f"; worst {w['change_pct']:+.1f} % ({w['sensor']} {w['magnitude']:g} axis {w['axis']} at "
-                         f"{w['t']:g} s, seed {w['seed']}, screen {'/'.join(w['screen']) or 'not held'}, "
-                         f"RMSE {w['rmse_clean_deg']:.3f} -> {w['rmse_faulty_deg']:.3f} deg)")
+                wc = max(bad, key=lambda c: abs(c["change_pct"]))
+                line += (f"; worst {wc['change_pct']:+.1f} % ({wc['sensor']} {wc['magnitude']:g} axis {wc['axis']} "
+                         f"at {wc['t']:g} s, seed {wc['seed']}, screen {'/'.join(wc['screen']) or 'not held'}, "
+                         f"RMSE {wc['rmse_clean_deg']:.3f} -> {wc['rmse_faulty_deg']:.3f} deg)")
             print(line)
     if args.out is not None:
         args.out.write_text(json.dumps({"wind": args.wind, "duration": args.duration, "target_pct": TARGET_PCT,
