@@ -117,6 +117,13 @@ def _run_one(est: Any, flight: Any, t0: float, t1: float) -> tuple[dict[str, Any
     return row, nees, est.cov_t
 
 
+def _windows(t0: float, t1: float, t_end: float) -> list[tuple[float, float]]:
+    """Start-up, before the outage, its first and last 10 s, its middle, the 10 s after it and the rest."""
+    w = [(0.0, SETTLED_S), (SETTLED_S, t0), (t0, t0 + 10.0), (t0 + 10.0, t1 - 10.0), (t1 - 10.0, t1),
+         (t1, t1 + 10.0), (t1 + 10.0, t_end + 1e-9)]
+    return [(a, b) for a, b in w if b > a]
+
+
 def _band_share(avg: np.ndarray, lo: float, hi: float) -> float:
     return float(np.mean((avg >= lo) & (avg <= hi))) if len(avg) else float("nan")
 
@@ -230,6 +237,12 @@ def main(argv: list[str] | None = None) -> int:
             "nees_mean_all": float(np.mean(avg)),
             "nees_in_band_outage": _band_share(avg[in_out], lo, hi),
             "nees_in_band_all": _band_share(avg, lo, hi),
+            "nees_below_band_all": float(np.mean(avg < lo)),
+            "nees_above_band_all": float(np.mean(avg > hi)),
+            "nees_in_band_by_window": {
+                f"{a:g}-{b:g}": _band_share(avg[(tn >= a) & (tn < b)], lo, hi) for a, b in _windows(t0, t1, tn[-1])
+            },
+            "nees_avg_1s": [float(np.mean(avg[(tn >= a) & (tn < a + 1.0)])) for a in np.arange(0.0, tn[-1], 1.0)],
             "nees_samples": len(avg),
             "per_run": rs,
         }
@@ -255,6 +268,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{s['wind_h_at_end_ms_mean']:.2f} ({s['clean_wind_h_at_end_ms_mean']:.2f}) | "
               f"{s['wind_h_rmse_after_ms_mean']:.2f} | {100 * s['fallback_share_outage_mean']:.0f} % of the outage | "
               f"{s['runs_with_resets']}/{s['runs']} |")
+    print("\nrun-average NEES in the band, by window (s), and the share of all samples below / above it:")
+    for s in summary:
+        print(f"  {s['filter']}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in s["nees_in_band_by_window"].items())
+              + f"; below {100 * s['nees_below_band_all']:.0f} %, above {100 * s['nees_above_band_all']:.0f} %")
     print("\nper run (tilt RMSE in the outage, deg):")
     for name in filters:
         print(f"  {name}: " + " ".join(f"{r['tilt_rmse_outage_deg']:.2f}" for r in runs[name]))
