@@ -20,7 +20,8 @@ so that the estimator sees the sample as a sensor would send it (the ``injected`
 NaN before the estimator) is not exercised here.
 
 How the spike was caught: the IMU screen's log (``Estimate.alerts["imu"]``, outcome 1 beyond
-the sensor's range, 2 a spike, 3 motion propagated one sample late; "-" not held), the flags
+the sensor's range, 2 a spike, 3 motion propagated one sample late, at the spike's sample;
+"next held": the spike passed and the sample after it was held; "not held"), the flags
 at the spike's sample (``Estimate.flags``), and the flags raised in the 10 s after it that the
 clean run did not raise at those samples. ``--out`` writes every case as JSON.
 Plain loops, progress on stderr.
@@ -45,6 +46,7 @@ AFTER_S = 10.0
 #: The Flight constructor's gyro unit check, rad/s (windahrs.flight.ImuStream).
 FLIGHT_GYRO_LIMIT = 50.0
 OUTCOME = {1: "range", 2: "spike", 3: "late"}
+SCREEN = (*OUTCOME.values(), "next held", "not held")
 
 
 def _split(text: str, kind: type, name: str, ap: argparse.ArgumentParser) -> list[Any]:
@@ -72,6 +74,19 @@ def _faulty(flight: Any, fault: Any) -> tuple[Any, str]:
     for k in ("t", "w_b", "f_b"):
         object.__setattr__(imu, k, raw.imu[k])
     return flight.replace(imu=imu, meta={**flight.meta, "faults": fault.spec()}), "bypass"
+
+
+def _screen(held: np.ndarray | None, t: np.ndarray, k: int) -> str:
+    """What the IMU screen did with the spike at sample k: its outcome there ("range",
+    "spike", "late"), else "next held" when the sample after it was held (the spike was
+    propagated, and the return to normal looked like a spike against it), else "not held"."""
+    if held is None or len(held) == 0:
+        return "not held"
+    rows = np.searchsorted(t, held[:, 0] - 1e-9)
+    for row, code in zip(rows, held[:, 3], strict=True):
+        if row == k:
+            return OUTCOME[int(code)]
+    return "next held" if np.any(rows == k + 1) else "not held"
 
 
 def _flag_names(bits: int) -> list[str]:
@@ -138,11 +153,7 @@ def main(argv: list[str] | None = None) -> int:
                             sf = wa.score(est, flight)
                             k = int(np.searchsorted(flight.imu.t, t_spike))
                             ts = float(flight.imu.t[k])
-                            held = est.alerts.get("imu")
-                            codes: list[int] = []
-                            if held is not None and len(held):
-                                near = np.abs(held[:, 0] - ts) <= 1.5 * float(np.median(np.diff(flight.imu.t)))
-                                codes = sorted({int(c) for c in held[near, 3]})
+                            screen = _screen(est.alerts.get("imu"), flight.imu.t, k)
                             fl = int(est.flags[k]) if est.flags is not None else 0
                             if est.flags is not None and clean.flags is not None:
                                 w = (est.t > ts) & (est.t <= ts + AFTER_S)
@@ -159,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
                                 "rmse_clean_deg": sc.rmse_total_deg, "rmse_faulty_deg": sf.rmse_total_deg,
                                 "change_pct": change,
                                 "tilt_change_pct": 100.0 * (sf.rmse_tilt_deg - sc.rmse_tilt_deg) / sc.rmse_tilt_deg,
-                                "screen": [OUTCOME[c] for c in codes],
+                                "screen": screen,
                                 "flags_at_spike": _flag_names(fl),
                                 "new_flags_after": _flag_names(new),
                                 "new_resets": resets_new,
@@ -173,7 +184,8 @@ def main(argv: list[str] | None = None) -> int:
           f"seeds 0-{args.seeds - 1}, W20 {args.wind:g} m/s, {args.duration:g} s flights; RMSE = total attitude "
           f"error from sample 50; target |change| < {TARGET_PCT:g} %")
     print("| vehicle | filter | spike | clean RMSE, deg | change %: median / worst | cases within 10 % | "
-          "screen (range/spike/late/not held) | flagged imu_held at the spike | new flags in 10 s | new resets |")
+          "screen: range/spike/late/next held/not held | flagged imu_held at the spike | new flags in 10 s | "
+          "new resets |")
     print("|---" * 10 + "|")
     groups: list[dict[str, Any]] = []
     for vehicle in vehicles:
@@ -185,8 +197,7 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 ch = np.array([c["change_pct"] for c in cs])
                 worst = float(ch[np.argmax(np.abs(ch))])
-                screen = {o: sum(o in c["screen"] for c in cs) for o in OUTCOME.values()}
-                screen["none"] = sum(not c["screen"] for c in cs)
+                outcomes = {o: sum(c["screen"] == o for c in cs) for o in SCREEN}
                 new_flags: dict[str, int] = {}
                 for c in cs:
                     for f in c["new_flags_after"]:
@@ -197,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                     "rmse_clean_deg": [min(c["rmse_clean_deg"] for c in cs), max(c["rmse_clean_deg"] for c in cs)],
                     "change_pct_median": float(np.median(ch)), "change_pct_worst": worst,
                     "within_target": int(np.sum(np.abs(ch) < TARGET_PCT)),
-                    "screen": screen,
+                    "screen": outcomes,
                     "flagged_imu_held": sum("imu_held" in c["flags_at_spike"] for c in cs),
                     "new_flags_after": new_flags,
                     "new_resets": int(sum(c["new_resets"] for c in cs)),
@@ -208,8 +219,8 @@ def main(argv: list[str] | None = None) -> int:
                 flags_txt = ", ".join(f"{k} {v}" for k, v in sorted(new_flags.items())) or "-"
                 print(f"| {vehicle} | {spec} | {sensor} {mag:g} {unit}{extra} | {g['rmse_clean_deg'][0]:.2f}-"
                       f"{g['rmse_clean_deg'][1]:.2f} | {g['change_pct_median']:+.1f} / {worst:+.1f} | "
-                      f"{g['within_target']}/{len(cs)} | {screen['range']}/{screen['spike']}/{screen['late']}/"
-                      f"{screen['none']} | {g['flagged_imu_held']}/{len(cs)} | {flags_txt} | {g['new_resets']} |")
+                      f"{g['within_target']}/{len(cs)} | " + "/".join(str(outcomes[o]) for o in SCREEN) + " |"
+                      f" {g['flagged_imu_held']}/{len(cs)} | {flags_txt} | {g['new_resets']} |")
     print()
     for vehicle in vehicles:
         for spec in filters:
@@ -220,8 +231,11 @@ def main(argv: list[str] | None = None) -> int:
             if bad:
                 wc = max(bad, key=lambda c: abs(c["change_pct"]))
                 line += (f"; worst {wc['change_pct']:+.1f} % ({wc['sensor']} {wc['magnitude']:g} axis {wc['axis']} "
-                         f"at {wc['t']:g} s, seed {wc['seed']}, screen {'/'.join(wc['screen']) or 'not held'}, "
+                         f"at {wc['t']:g} s, seed {wc['seed']}, screen: {wc['screen']}, "
                          f"RMSE {wc['rmse_clean_deg']:.3f} -> {wc['rmse_faulty_deg']:.3f} deg)")
+            if bad:
+                by = {o: sum(c["screen"] == o for c in bad) for o in SCREEN}
+                line += "; beyond it by screen outcome: " + ", ".join(f"{o} {n}" for o, n in by.items() if n)
             print(line)
     if args.out is not None:
         args.out.write_text(json.dumps({"wind": args.wind, "duration": args.duration, "target_pct": TARGET_PCT,
