@@ -18,7 +18,8 @@ Per run and filter: the tilt error (:func:`~windahrs.metrics.attitude_errors`, t
 between the estimated and true body z axes) RMS before the outage (from 30 s), during it and
 after it, its maximum during it; the horizontal velocity error at the outage's end and its
 maximum during it; the horizontal wind error RMS before and during the outage and at its end;
-the share of the outage's samples flagged ``fallback`` and the resets logged. Over the runs:
+the share of the outage's samples flagged ``fallback``, the resets logged and the GNSS samples
+rejected by the gate in the 10 s after the outage. Over the runs:
 the attitude and gyro-bias NEES (6 dof, :func:`~windahrs.metrics.nees_attitude`) averaged over
 the runs at each recorded covariance sample, the share of those samples (during the outage,
 and over the flight) where it lies inside the two-sided 95 % chi-square band of that many
@@ -49,6 +50,8 @@ NEES_DIM = 6
 #: converge over tens of seconds, windahrs.metrics.WIND_FROM_S).
 SETTLED_S = 30.0
 MATCHED = "ins-wind (matched)"
+#: GNSS samples rejected by the gate are counted over this long after the outage, s.
+AFTER_S = 10.0
 #: What is kept of the same flight without the outage.
 CLEAN_KEYS = ("tilt_rmse_outage_deg", "vel_h_max_outage_ms", "vel_h_at_end_ms", "wind_h_rmse_outage_ms",
               "wind_h_at_end_ms")
@@ -113,6 +116,11 @@ def _run_one(est: Any, flight: Any, t0: float, t1: float) -> tuple[dict[str, Any
         bit = np.uint32(1 << FLAGS["fallback"][0])
         row["fallback_share_outage"] = float(np.mean((est.flags[dur] & bit) != 0))
     row["resets"] = {k: len(v) for k, v in est.resets.items() if len(v)}
+    gnss = est.innovations.get("gnss")
+    if gnss is not None:
+        back = (gnss.t >= t1) & (gnss.t < t1 + AFTER_S)
+        row["gnss_rejected_after"] = int(np.sum(~gnss.accepted[back]))
+        row["gnss_samples_after"] = int(np.sum(back))
     nees = nees_attitude(est, flight)
     return row, nees, est.cov_t
 
@@ -232,6 +240,8 @@ def main(argv: list[str] | None = None) -> int:
             "clean_wind_h_at_end_ms_mean": float(np.mean(ccol("wind_h_at_end_ms"))),
             "fallback_share_outage_mean": float(np.mean(col("fallback_share_outage"))),
             "runs_with_resets": int(sum(bool(r["resets"]) for r in rs)),
+            "gnss_rejected_after": int(np.nansum(col("gnss_rejected_after"))),
+            "gnss_samples_after": int(np.nansum(col("gnss_samples_after"))),
             "nees_band": [lo, hi],
             "nees_mean_outage": float(np.mean(avg[in_out])),
             "nees_mean_all": float(np.mean(avg)),
@@ -258,8 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\nwhat the outage does (mean over the runs; the same flights without the outage in brackets):")
     print("| filter | tilt RMSE in the window, deg | hor. velocity error max in the window / at its end, m/s | "
           "hor. wind error RMS in the window / at its end, m/s | wind error after it, m/s | fallback flagged | "
-          "runs with resets |")
-    print("|---" * 7 + "|")
+          "runs with resets | GNSS rejected in the 10 s after |")
+    print("|---" * 8 + "|")
     for s in summary:
         print(f"| {s['filter']} | {s['tilt_rmse_outage_deg_mean']:.3f} ({s['clean_tilt_rmse_outage_deg_mean']:.3f}) | "
               f"{s['vel_h_max_outage_ms_mean']:.2f} ({s['clean_vel_h_max_outage_ms_mean']:.2f}) / "
@@ -267,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{s['wind_h_rmse_outage_ms_mean']:.2f} ({s['clean_wind_h_rmse_outage_ms_mean']:.2f}) / "
               f"{s['wind_h_at_end_ms_mean']:.2f} ({s['clean_wind_h_at_end_ms_mean']:.2f}) | "
               f"{s['wind_h_rmse_after_ms_mean']:.2f} | {100 * s['fallback_share_outage_mean']:.0f} % of the outage | "
-              f"{s['runs_with_resets']}/{s['runs']} |")
+              f"{s['runs_with_resets']}/{s['runs']} | {s['gnss_rejected_after']} of {s['gnss_samples_after']} |")
     print("\nrun-average NEES in the band, by window (s), and the share of all samples below / above it:")
     for s in summary:
         print(f"  {s['filter']}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in s["nees_in_band_by_window"].items())
