@@ -148,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--outage", type=float, default=60.0, help="outage length, s (default 60)")
     ap.add_argument("--out", type=Path, default=None, metavar="FILE.json")
     args = ap.parse_args(argv)
+    if args.out is not None and not (args.out.parent.is_dir() and not args.out.is_dir()):
+        ap.error(f"--out: expected a file path in an existing directory, found {str(args.out)!r}")
     if args.runs < 1:
         ap.error(f"--runs: expected an integer >= 1, found {args.runs}")
     t0, t1 = args.outage_start, args.outage_start + args.outage
@@ -160,10 +162,13 @@ def main(argv: list[str] | None = None) -> int:
     from windahrs.sim.faults import GnssOutage, inject
     from windahrs.sim.scenario import make_scenario, simulate
 
-    scenario = make_scenario("fixedwing", wind=args.wind, duration=args.duration)
-    outage = GnssOutage(start=t0, duration=args.outage)
-    names = [s for s in args.filters.split(",") if s.strip()]
-    filters: dict[str, Any] = {s: wa.estimator(s) for s in names}
+    try:
+        scenario = make_scenario("fixedwing", wind=args.wind, duration=args.duration)
+        outage = GnssOutage(start=t0, duration=args.outage)
+        names = [s for s in args.filters.split(",") if s.strip()]
+        filters: dict[str, Any] = {s: wa.estimator(s) for s in names}
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.matched:
         filters[MATCHED] = _matched_ins_wind(scenario)
     runs: dict[str, list[dict[str, Any]]] = {n: [] for n in filters}

@@ -108,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--accel", default="5,10,20,50,100,300", help="accelerometer spike sizes, m/s^2")
     ap.add_argument("--out", type=Path, default=None, metavar="FILE.json")
     args = ap.parse_args(argv)
+    if args.out is not None and not (args.out.parent.is_dir() and not args.out.is_dir()):
+        ap.error(f"--out: expected a file path in an existing directory, found {str(args.out)!r}")
     times = _split(args.times, float, "--times", ap)
     axes = _split(args.axes, int, "--axes", ap)
     sizes = [("gyro", m) for m in _split(args.gyro, float, "--gyro", ap)]
@@ -126,6 +128,15 @@ def main(argv: list[str] | None = None) -> int:
 
     vehicles = [v for v in args.vehicles.split(",") if v.strip()]
     filters = [f for f in args.filters.split(",") if f.strip()]
+    try:
+        for v in vehicles:
+            make_scenario(v, wind=args.wind, duration=args.duration)
+        for f in filters:
+            wa.estimator(f)
+        for m in sizes:
+            (GyroSpike if m[0] == "gyro" else AccelSpike)(start=times[0], magnitude=m[1])
+    except ValueError as exc:  # (FaultError is a ValueError)
+        ap.error(str(exc))
     held_bit = 1 << FLAGS["imu_held"][0]
     late_bit = 1 << FLAGS["imu_late"][0]
     cases: list[dict[str, Any]] = []
