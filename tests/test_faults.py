@@ -13,8 +13,8 @@ import pytest
 import windahrs as wa
 from windahrs.cli import main
 from windahrs.estimate import Estimate, Innovations
-from windahrs.flags import FLAGS
 from windahrs.experiments.faults import FaultCase, first_flag, recovery_time, run_fault_matrix
+from windahrs.flags import FLAGS
 from windahrs.flight import Flight
 from windahrs.io import read_flight
 from windahrs.sim import faults as F
