@@ -135,7 +135,7 @@ def test_stamp_faults_refused_as_flight_and_repaired_from_csv(flight: Flight, tm
     assert len(raw.imu["t"]) == len(flight.imu.t) + 3
     assert (np.diff(raw.imu["t"]) == 0).sum() == 3 and (np.diff(raw.imu["t"]) < 0).sum() == 2
     back = read_flight(raw.write_csv_dir(tmp_path / "log"))
-    assert back.meta["imu.dropped_duplicates"] == 3 and back.meta["imu.reordered"] == 4
+    assert back.repairs["imu"]["duplicates"] == 3 and back.repairs["imu"]["reordered"] == 4
     np.testing.assert_allclose(back.imu.t, flight.imu.t, atol=1e-9)
     np.testing.assert_allclose(back.imu.w_b, flight.imu.w_b, rtol=1e-12)
 
@@ -264,7 +264,7 @@ def test_simulate_with_faults(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "use inject_raw()" in capsys.readouterr().err and not (tmp_path / "g.h5").exists()
     assert main(["simulate", "--duration", "3", "--fault", "out-of-order:start=1:duration=1", "--csv", "--out",
                  str(tmp_path / "csv")]) == 0
-    assert read_flight(tmp_path / "csv").meta["imu.reordered"] == 2
+    assert read_flight(tmp_path / "csv").repairs["imu"]["reordered"] == 2
     assert main(["simulate", "--duration", "3", "--fault", "gyro-spike:start=1:magnitude=x", "--out",
                  str(tmp_path / "h.h5")]) == 2
     assert capsys.readouterr().err.strip().endswith("GyroSpike.magnitude: expected a float, found 'x'")

@@ -16,6 +16,12 @@ the test instead of hanging CI; hypothesis' deadline reports slow reads. A diffe
 test checks the CSV reader's numpy fast path against its row-by-row reader, and the bugs
 the fuzzing found are pinned by regression tests.
 
+The repair paths (windahrs.repair) are fuzzed with glitches a real log has rather than
+random bytes: rows written twice, rows swapped, spikes of any size, NaN and inf in values
+and time stamps, in the arrays of ``Flight.from_arrays`` (with and without ``strict``) and
+in the rows of a CSV file. The result is a repaired Flight whose counts account for every
+row and that holds no finite sample beyond the sensor ranges, or a documented error.
+
 Bounded and reproducible: ``derandomize=True``, no example database, 100 examples per seed
 (about 20 s in all on two cores).
 """
@@ -464,6 +470,109 @@ def test_csv_fast_parser_matches_row_reader(sim_flight: Flight, case: st.DataObj
     np.testing.assert_array_equal(fast.time, slow.time)
     for c in cols:
         np.testing.assert_array_equal(fast.values[c], slow.values[c])
+
+
+# --- the repair paths ----------------------------------------------------------------------
+
+#: Values a glitch may put in a sample: in range, beyond every sensor's range, non-finite.
+GLITCH_VALUES = st.one_of(
+    st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False),
+    st.sampled_from([np.nan, np.inf, -np.inf, 40.0, -300.0, 1e300]),
+)
+
+
+@st.composite
+def glitches(draw: st.DrawFn, n: int) -> list[tuple[str, int, int, int, float]]:
+    """1 to 12 edits of an n-row sensor table: (kind, row, other row, column, value), kind
+    one of "repeat" (a row written twice), "swap" (two rows exchanged), "spike" (one cell
+    set to a value) and "time" (one stamp set to a value)."""
+    out = []
+    for _ in range(draw(st.integers(1, 12), label="edits")):
+        kind = draw(st.sampled_from(["repeat", "swap", "spike", "time"]), label="kind")
+        out.append((kind, draw(st.integers(0, n - 1)), draw(st.integers(0, n - 1)), draw(st.integers(0, 5)),
+                    draw(GLITCH_VALUES, label="value")))
+    return out
+
+
+def apply_glitches(rows: np.ndarray, edits: list[tuple[str, int, int, int, float]]) -> np.ndarray:
+    """``rows`` (N, 1 + k): time then values, with ``edits`` applied (column c of a spike is
+    1 + c mod k)."""
+    rows = rows.copy()
+    for kind, i, j, c, value in edits:
+        i, j = min(i, len(rows) - 1), min(j, len(rows) - 1)
+        if kind == "repeat":
+            rows = np.insert(rows, i, rows[i], axis=0)
+        elif kind == "swap":
+            rows[[i, j]] = rows[[j, i]]
+        elif kind == "spike":
+            rows[i, 1 + c % (rows.shape[1] - 1)] = value
+        else:
+            rows[i, 0] = value
+    return rows
+
+
+def check_repaired(f: Flight, n_in: int) -> None:
+    """A Flight from repaired input: sorted unique finite stamps, every row accounted for,
+    no finite sample beyond the sensor ranges, every count a known kind."""
+    from windahrs.repair import ACCEL_RANGE, GYRO_RANGE, REPAIR_KINDS
+
+    assert np.isfinite(f.imu.t).all() and (np.diff(f.imu.t) > 0).all()
+    counts = f.repairs.get("imu", {})
+    assert set(counts) <= set(REPAIR_KINDS)
+    assert len(f.imu.t) + counts.get("duplicates", 0) + counts.get("unsortable", 0) == n_in
+    for a, limit in ((f.imu.w_b, GYRO_RANGE), (f.imu.f_b, ACCEL_RANGE)):
+        ok = np.isfinite(a)
+        assert (np.abs(a[ok]) <= limit).all()
+
+
+@settings(FUZZ, max_examples=200)
+@given(case=st.data())
+def test_fuzzed_arrays_repair_or_raise_documented_error(sim_flight: Flight, case: st.DataObject) -> None:
+    """Flight.from_arrays on glitched IMU arrays (repeated rows, swapped rows, spikes of any
+    size, NaN and inf in values and stamps; sometimes a unit slip): a repaired Flight whose
+    counts add up, or a FlightError naming the argument; with strict=True, an unrepaired
+    Flight or a FlightError."""
+    imu = sim_flight.imu
+    rows = np.column_stack([imu.t, imu.w_b, imu.f_b])
+    bad = apply_glitches(rows, case.draw(glitches(len(rows)), label="glitches"))
+    # and sometimes a unit slip of the whole gyro column (raw counts given as rad/s)
+    t, g, a = bad[:, 0], bad[:, 1:4] * case.draw(st.sampled_from([1.0, 1e4]), label="gyro scale"), bad[:, 4:7]
+    try:
+        f = Flight.from_arrays(t, g, a)
+    except FlightError as exc:
+        event(f"from_arrays: FlightError {exc.field}")
+        assert exc.field in ("t", "gyro", "accel"), str(exc)
+    else:
+        event("from_arrays: repaired" if f.repairs else "from_arrays: nothing to repair")
+        check_repaired(f, len(t))
+    try:
+        strict = Flight.from_arrays(t, g, a, strict=True)
+    except FlightError as exc:
+        assert exc.field in ("t", "gyro", "accel"), str(exc)
+    else:
+        assert strict.repairs == {}
+        np.testing.assert_array_equal(strict.imu.t, t)
+
+
+@settings(FUZZ, max_examples=100)
+@given(case=st.data())
+def test_fuzzed_csv_rows_repair_or_raise_documented_error(sim_flight: Flight, case: st.DataObject) -> None:
+    """The generic CSV reader on an imu.csv with glitched rows (as above, written as text):
+    a repaired Flight whose counts add up, or a documented error naming the file."""
+    from windahrs.conventions import DEG, G0
+
+    imu = sim_flight.imu
+    rows = np.column_stack([imu.t * 1e3, imu.w_b / DEG, imu.f_b / G0])
+    bad = apply_glitches(rows, case.draw(glitches(len(rows)), label="glitches"))
+    files = csv_files(sim_flight)
+    files["imu.csv"] = csv_text(["t_ms", "wx", "wy", "wz", "ax", "ay", "az"], list(bad.T))
+    with tempfile.TemporaryDirectory() as tmp:
+        seed = Seed("csv", files, "")
+        path = seed.write(Path(tmp), "imu.csv", files["imu.csv"])
+        outcome = read_documented(read_flight, path, READ_ERRORS)
+        event(f"read_flight: {type(outcome).__name__}")
+        if isinstance(outcome, Flight):
+            check_repaired(outcome, len(bad))
 
 
 def test_empty_and_cut_files(seed: Seed, tmp_path: Path) -> None:

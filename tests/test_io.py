@@ -41,7 +41,8 @@ from windahrs.io import (
     read_flight,
     read_ulog,
 )
-from windahrs.io.edge import clean_series
+from windahrs.io.edge import TruncatedLogWarning
+from windahrs.repair import clean_series
 from windahrs.rotation import (
     euler_from_quat,
     quat_angle,
@@ -138,7 +139,7 @@ def test_ulog_duplicates_dropped_and_counted(tmp_path: Path) -> None:
     out = tmp_path / "dup.ulg"
     ulog.write_ulog(str(out))
     f = read_ulog(out)
-    assert f.meta["imu.dropped_duplicates"] == 2
+    assert f.repairs["imu"]["duplicates"] == 2
     assert len(f.imu.t) == len(sc.data["timestamp"]) - 2
 
 
@@ -171,10 +172,14 @@ def test_ulog_missing_topic_names_file_and_topic(tmp_path: Path) -> None:
 def test_clean_series_sorts_and_keeps_first() -> None:
     t = np.array([0, 2, 1, 3, 3, 4])
     v = np.array([10.0, 12.0, 11.0, 13.0, 99.0, 14.0])
-    t2, (v2,), n_reordered, n_dup = clean_series(t, v)
+    t2, (v2,), counts = clean_series(t, v)
     np.testing.assert_array_equal(t2, [0, 1, 2, 3, 4])
     np.testing.assert_array_equal(v2, [10, 11, 12, 13, 14])
-    assert (n_reordered, n_dup) == (2, 1)
+    assert counts == {"unsortable": 0, "reordered": 2, "duplicates": 1}
+    # a non-finite stamp cannot be placed in time: dropped and counted
+    _, (v3,), counts = clean_series(np.array([0.0, np.nan, 1.0]), np.array([1.0, 2.0, 3.0]))
+    np.testing.assert_array_equal(v3, [1.0, 3.0])
+    assert counts == {"unsortable": 1, "reordered": 0, "duplicates": 0}
 
 
 # --- BROAD -----------------------------------------------------------------------------
@@ -511,8 +516,9 @@ def test_csv_missing_cells_order_and_truncation(
     lines.insert(20, lines[20])  # a repeated stamp
     lines.append(lines[-1][:5])  # a last row cut while being written
     (d / "imu.csv").write_text("\n".join(lines) + "\n\n")
-    f = read_flight(d)
-    assert f.meta["imu.reordered"] == 2 and f.meta["imu.dropped_duplicates"] == 1
+    with pytest.warns(TruncatedLogWarning, match=r"imu\.csv: truncated: .*1 row dropped"):
+        f = read_flight(d)
+    assert f.repairs["imu"] == {"reordered": 2, "duplicates": 1}  # the empty cell: missing, not a repair
     assert f.meta["imu.dropped_truncated_row"] == 1
     np.testing.assert_allclose(f.imu.t, flight.imu.t, atol=1e-9)
     # One empty cell makes the row a missing sample (the Flight's NaN policy), per sensor.
@@ -650,9 +656,10 @@ def test_dataflash_truncated(tmp_path: Path) -> None:
     dataflash_log(full)
     data = full.read_bytes()
     cut = tmp_path / "cut.bin"
-    cut.write_bytes(data[: len(data) // 2 + 7])  # cut mid-message: the rest is read
-    f = read_dataflash(cut)
-    assert 50 < len(f.imu.t) < 200
+    cut.write_bytes(data[: len(data) // 2 + 7])  # cut mid-message: the rest is read, and said
+    with pytest.warns(TruncatedLogWarning, match=r"cut\.bin: truncated: .* bytes dropped"):
+        f = read_dataflash(cut)
+    assert 50 < len(f.imu.t) < 200 and f.meta["dataflash.truncated_bytes"] > 0
     head = tmp_path / "head.bin"
     head.write_bytes(data[: 9 * 89])  # the nine FMT messages only
     with pytest.raises(LogFormatError, match=r"head\.bin.*'IMU'"):

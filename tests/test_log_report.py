@@ -233,6 +233,15 @@ def test_report_of_failures_only_and_bad_input(sim: Flight) -> None:
         build_log_report(sim, [("x", est)], alignment=al)
 
 
+def test_report_says_what_was_repaired(sim: Flight) -> None:
+    est = Estimate("x", sim.imu.t, np.tile([1.0, 0.0, 0.0, 0.0], (len(sim.imu.t), 1)))
+    bare = sim.replace(truth=None, air=None, gnss=None)
+    assert "repaired" not in build_log_report(bare, [("x", est)])
+    page = build_log_report(bare.replace(repairs={"imu": {"duplicates": 2, "out_of_range": 1}}), [("x", est)])
+    assert ("Input repaired at the edge (windahrs.repair), so each estimator saw it repaired: imu: 2 samples with a "
+            "repeated time stamp dropped, 1 sample beyond the sensor range set to NaN.") in html.unescape(page)
+
+
 def test_innovations_with_nan_nis_and_rejections(sim: Flight) -> None:
     t = sim.imu.t[::10]
     nis = np.full(len(t), 2.0)

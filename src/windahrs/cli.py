@@ -326,23 +326,28 @@ def _cmd_filters(args: argparse.Namespace) -> int:
 def _cmd_info(args: argparse.Namespace) -> int:
     from windahrs.io import detect_format
 
-    flight = _read(args.file)
+    flight = _read(args.file, say_repairs=False)  # the summary lists them
     print(f"file       {args.file}")
     print(f"format     {detect_format(args.file)}")
     print(flight.summary())
     return 0
 
 
-def _read(path: Path) -> Flight:
+def _read(path: Path, *, say_repairs: bool = True) -> Flight:
     """A flight file or a log/dataset the readers know (a warning on stderr when its IMU
-    rate is too low for the default noise)."""
+    rate is too low for the default noise, and one saying what the edge repaired: once per
+    flight, not once per estimator)."""
     from windahrs.filters.params import imu_rate_warning
     from windahrs.io import read_flight
+    from windahrs.repair import RepairWarning, repairs_text
 
     flight = read_flight(path)
     warning = imu_rate_warning(flight.imu.t)
     if warning:
         _note(f"warning: {warning}")
+    repaired = repairs_text(flight.repairs)
+    if repaired and say_repairs:
+        warnings.warn(f"{path}: input repaired at the edge: {repaired}", RepairWarning, stacklevel=2)
     return flight
 
 
@@ -578,7 +583,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Read a windahrs flight file or any log or dataset the readers know (.ulg, .bin/.log, "
         "BROAD .hdf5, an ALFA, generic-CSV or ANSFL directory) and print its format, its streams with their "
         "rates, missing samples and gaps, the duration, whether truth or a reference is present (and which "
-        "kind), the site and the reader's notes (meta).",
+        "kind), the site, what the reader repaired (samples out of order, repeated stamps, infinite values and "
+        "samples beyond the sensor's range: a count per stream and kind) and the reader's notes (meta).",
     )
     i.add_argument("file", type=Path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
     i.set_defaults(func=_cmd_info)
@@ -713,6 +719,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     from windahrs.estimate import EstimatorWarning
     from windahrs.flight import FlightError
+    from windahrs.repair import RepairWarning
     from windahrs.store import StoreError
 
     parser = _parser()
@@ -721,6 +728,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", EstimatorWarning)  # each flight's, not the first only
+            warnings.simplefilter("always", RepairWarning)
             warnings.showwarning = _one_line_warning(args.command)
             return func(args)
     except (UsageError, FlightError, StoreError, ValueError, FileNotFoundError) as exc:

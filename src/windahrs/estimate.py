@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.flight import FlightError
-from windahrs.store import atomic_h5, open_h5, read_errors, read_record, write_record
+from windahrs.repair import repairs_text
+from windahrs.store import atomic_h5, open_h5, read_errors, read_record, read_repairs, write_record, write_repairs
 
 __all__ = ["ESTIMATE_FORMAT", "Estimate", "EstimatorWarning", "Innovations", "load_estimate", "save_estimate"]
 
@@ -94,7 +95,9 @@ class Estimate:
     uint32, one bit per reason (:data:`windahrs.flags.FLAGS`: rejected per sensor,
     disturbance detected, fallback active, reset done, sensor absent, ...) at each sample,
     or None (an estimator that keeps no such record); ``windahrs.flags.flag_spans`` turns
-    them into time spans with their reasons.
+    them into time spans with their reasons. repairs: what the edge repaired in the input
+    flight before the run (``Flight.repairs``: stream -> kind -> count, see
+    :mod:`windahrs.repair`).
     """
 
     filter: str
@@ -113,6 +116,7 @@ class Estimate:
     alerts: dict[str, F64] = field(default_factory=dict)
     flags: NDArray[np.uint32] | None = None
     cov_index: NDArray[np.int64] | None = None
+    repairs: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -160,11 +164,15 @@ class Estimate:
         """Attitude error covariance (M, 3, 3), body-frame rotation vector, rad^2, at :attr:`cov_t`."""
         return self.block("att_")
 
-    def warnings(self) -> list[str]:
-        """One line per thing the user must know, naming the estimator, what and when: each
-        reset (see ``resets``), and each gated sensor of which less than
-        :data:`LOW_ACCEPTANCE` of the samples were accepted."""
+    def warnings(self, *, repairs: bool = True) -> list[str]:
+        """One line per thing the user must know, naming the estimator, what and when: the
+        repairs of its input (``repairs``; left out with ``repairs=False``), each reset (see
+        ``resets``), and each gated sensor of which less than :data:`LOW_ACCEPTANCE` of the
+        samples were accepted."""
         out = []
+        text = repairs_text(self.repairs) if repairs else None
+        if text:
+            out.append(f"{self.filter}: input repaired at the edge: {text}")
         for sensor, rows in self.resets.items():
             for t, size, out_for in rows:
                 if sensor == "accel":
@@ -224,6 +232,7 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
             grp = f.create_group(name)
             for k, v in getattr(est, name).items():
                 grp.create_dataset(k, data=v)
+        write_repairs(f, est.repairs)
     return Path(path)
 
 
@@ -246,6 +255,7 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             meta=dict(f["meta"].attrs.items()),
             resets=_float_group(f, "resets"),
             alerts=_float_group(f, "alerts"),
+            repairs=read_repairs(f),
             **arrays,
         )
 

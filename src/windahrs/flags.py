@@ -18,6 +18,11 @@ with a NaN innovation), the accelerometer's specific force failing its norm chec
 **fallback** of an estimator that fuses GNSS velocity is its running without it: on air
 data when it has them (dead reckoning on the airspeed with the wind held, as PX4 EKF2 does
 when GNSS is lost), else on the IMU alone.
+
+The flight's own samples add what no estimator decides: a sensor **stuck** (repeating its
+sample exactly for :data:`STUCK_S`), an IMU axis **clipped** (holding one large magnitude), a
+magnetic field whose norm is off the reference's by more than :data:`MAG_NORM_SHARE`
+(**disturbed**, whatever the estimator's own checks are set to).
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from windahrs.core.imu_screen import CLIP_F, CLIP_W
+from windahrs.core.layout import SENSOR_STREAMS, SENSORS
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
 
@@ -52,7 +59,28 @@ FLAGS: dict[str, tuple[int, str]] = {
     "air_absent": (13, "no air data samples"),
     "fallback": (14, "fusing no GNSS velocity: dead reckoning on air data or on the IMU"),
     "not_initialised": (15, "not initialised yet (waiting for its first samples)"),
+    "imu_stuck": (16, "gyro or accelerometer repeats its sample exactly (a hung sensor or bus)"),
+    "mag_stuck": (17, "magnetometer repeats its sample exactly"),
+    "air_stuck": (18, "airspeed or a vane repeats its value exactly (blocked pitot, stuck vane)"),
+    "imu_clipped": (19, "an IMU axis held at one large value (saturated)"),
 }
+#: A sensor repeating its sample exactly for at least this long, s (and STUCK_SAMPLES samples),
+#: is stuck: the noise of MEMS inertial and magnetic sensors and of pitot and vane transducers
+#: spans several steps of their converters, so a live sensor does not repeat itself for long.
+STUCK_S = 0.2
+STUCK_SAMPLES = 5
+#: An IMU axis holding one magnitude of at least CLIP_MIN_W rad/s or CLIP_MIN_F m/s^2 for this
+#: many samples in a row is clipped: noise moves a live axis by converter steps at every sample,
+#: and only a clipped (or stuck) one holds a large value exactly. The minima are the smallest
+#: full scales autopilot IMUs are set to (125 deg/s on the BMI088, 250 on the MPU-6000/9250;
+#: 2 g), below which a slow, quantised axis may repeat itself (BROAD's does at 0.05 rad/s).
+CLIP_SAMPLES = 3
+CLIP_MIN_W = CLIP_W
+CLIP_MIN_F = CLIP_F
+#: The magnetometer's field is disturbed when its norm is off the reference's by more than
+#: this share (the site's field, else the flight's median norm): VQF's magNormTh, 0.1.
+MAG_NORM_SHARE = 0.1
+
 #: The innovation logs per flag (the aid sources of windahrs.aid, by their log keys).
 _REJECTED = {
     "accel_rejected": ("accel",),
@@ -79,13 +107,15 @@ def absent_after(t: F64) -> float:
     return max(ABSENT_PERIODS * period, ABSENT_MIN_S)
 
 
-def absent_mask(t_stream: F64, ok: NDArray[np.bool_], t: F64) -> NDArray[np.bool_]:
-    """At each of t: no finite sample of the stream in the last absence time (a gap, after
-    the last sample, or before a first sample that came late)."""
-    ts = t_stream[ok]
+def absent_mask(t_stream: F64, ok: NDArray[np.bool_], t: F64, lim: float | None = None) -> NDArray[np.bool_]:
+    """At each of t: no finite sample of the stream in the last absence time (``lim``, default
+    :func:`absent_after`; a gap, after the last sample, or before a first sample that came late)."""
+    ts = t_stream if ok.all() else t_stream[ok]
     if len(ts) == 0:
         return np.ones(len(t), dtype=bool)
-    lim = absent_after(t_stream)
+    lim = absent_after(t_stream) if lim is None else lim
+    if len(t) and ts[0] - t[0] <= lim and t[-1] - ts[-1] <= lim and (len(ts) < 2 or np.diff(ts).max() <= lim):
+        return np.zeros(len(t), dtype=bool)  # (no gap anywhere: the common case, quickly)
     i = np.searchsorted(ts, t, side="right")
     prev = np.where(i > 0, ts[np.maximum(i - 1, 0)], -np.inf)
     # (a stream whose first sample comes within the time of the flight's start is not absent before it)
@@ -124,6 +154,63 @@ def _stream_rows(flight: Flight, name: str) -> tuple[F64, NDArray[np.bool_]] | N
     return s.t, np.isfinite(s.tas)
 
 
+def _runs(same: NDArray[np.bool_], t: F64, min_n: int, min_s: float) -> NDArray[np.bool_]:
+    """Mark the samples of runs where ``same[k]`` (sample k repeats sample k-1) holds for at
+    least min_n samples and min_s s (the run's first sample included)."""
+    out = np.zeros(len(t), dtype=bool)
+    edges = np.flatnonzero(np.diff(np.r_[0, same.astype(np.int8), 0]))
+    for i0, i1 in zip(edges[::2], edges[1::2], strict=True):
+        a = max(i0 - 1, 0)  # the sample the run repeats
+        if i1 - a >= min_n and t[i1 - 1] - t[a] >= min_s:
+            out[a:i1] = True
+    return out
+
+
+def _repeats(v: F64) -> NDArray[np.bool_]:
+    """Sample k equals sample k-1 in every column (False for the first)."""
+    v = v.reshape(len(v), -1)
+    same = np.zeros(len(v), dtype=bool)
+    first = v[1:, 0] == v[:-1, 0]
+    if first.any():  # (a live sensor rarely repeats even one column: checked first, quickly)
+        same[1:] = first & np.all(v[1:] == v[:-1], axis=1) & np.isfinite(v[1:]).all(axis=1)
+    return same
+
+
+def stream_flags(flight: Flight) -> dict[str, tuple[F64, NDArray[np.bool_]]]:
+    """What the flight's own samples say: per flag name (stuck sensors, clipped IMU axes),
+    the stream's times and the samples flagged."""
+    out: dict[str, tuple[F64, NDArray[np.bool_]]] = {}
+    imu = flight.imu
+    stuck = np.zeros(len(imu.t), dtype=bool)
+    clipped = np.zeros(len(imu.t), dtype=bool)
+    for v, lo in ((imu.w_b, CLIP_MIN_W), (imu.f_b, CLIP_MIN_F)):
+        stuck |= _runs(_repeats(v), imu.t, STUCK_SAMPLES, STUCK_S)
+        big = np.abs(v) >= lo
+        for a in range(3):
+            if not big[:, a].any():
+                continue
+            col = np.abs(v[:, a])
+            same = np.zeros(len(col), dtype=bool)
+            same[1:] = (col[1:] == col[:-1]) & big[1:, a]
+            clipped |= _runs(same, imu.t, CLIP_SAMPLES, 0.0)
+    out["imu_stuck"], out["imu_clipped"] = (imu.t, stuck), (imu.t, clipped)
+    if flight.mag is not None:
+        m = flight.mag
+        out["mag_stuck"] = (m.t, _runs(_repeats(m.mag_b), m.t, STUCK_SAMPLES, STUCK_S))
+        norm = np.linalg.norm(m.mag_b, axis=1)
+        ref = float(np.linalg.norm(flight.site.mag_n)) if flight.site.mag_n is not None else float(np.nanmedian(norm))
+        with np.errstate(invalid="ignore"):
+            out["mag_disturbed"] = (m.t, np.abs(norm - ref) > MAG_NORM_SHARE * ref)
+    if flight.air is not None:
+        air = flight.air
+        s = _runs(_repeats(air.tas), air.t, STUCK_SAMPLES, STUCK_S)
+        for vane in (air.aoa, air.sideslip):
+            if vane is not None:
+                s |= _runs(_repeats(vane), air.t, STUCK_SAMPLES, STUCK_S)
+        out["air_stuck"] = (air.t, s)
+    return out
+
+
 def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
     """The flags (:data:`FLAGS`) at each of the Estimate's samples, from its own records and
     the flight's streams (module docstring)."""
@@ -138,19 +225,23 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         put("imu_held", _points(held[held[:, 3] < 3, 0], t))
         put("imu_late", _points(held[held[:, 3] == 3, 0], t))
     absent: dict[str, NDArray[np.bool_]] = {}
+    lims: dict[str, float] = {}
     for stream in ("imu", "mag", "gnss", "air"):
         rows = _stream_rows(flight, stream)
         if rows is not None:
-            absent[stream] = absent_mask(rows[0], rows[1], t)
+            lims[stream] = lim = absent_after(rows[0])
+            absent[stream] = absent_mask(rows[0], rows[1], t, lim)
+            if stream == "imu":  # the estimate has no rows in a gap: its first row after says it
+                absent[stream][1:] |= np.diff(t) > lim
             put(f"{stream}_absent", absent[stream])
     for flag, keys in _REJECTED.items():
         for key in keys:
             inn = est.innovations.get(key)
-            if inn is None or len(inn.t) == 0:
+            if inn is None or len(inn.t) == 0 or inn.accepted.all():
                 continue
             # a disturbance check logs NaN: that is a disturbance, not the gate
             nan = ~np.isfinite(inn.nu).all(axis=1) if inn.nu.ndim == 2 else ~np.isfinite(inn.nu)
-            hold = absent_after(inn.t)
+            hold = lims.get(SENSOR_STREAMS[SENSORS.index(key)]) or absent_after(inn.t)
             put(flag, _holding(inn.t, ~inn.accepted & ~nan, t, hold))
             if key in ("mag", "accel"):
                 put(f"{key}_disturbed", _holding(inn.t, ~inn.accepted & nan, t, hold))
@@ -160,6 +251,9 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         put("tilt_lost", (t >= t0) & (t <= t1))
     if "gnss" in est.innovations or (est.v_n is not None and "gnss" in absent):
         put("fallback", absent.get("gnss", np.zeros(len(t), dtype=bool)))
+    for name, (ts, on) in stream_flags(flight).items():  # onto the estimate's samples
+        if on.any():
+            put(name, _holding(ts, on, t, lims.get(name.split("_")[0]) or absent_after(ts)))
     if est.cov is not None and len(t):  # (the covariance is NaN until initialisation)
         ok = np.isfinite(est.cov[:, 0, 0])
         first = int(est.cov_rows[np.argmax(ok)]) if ok.any() else len(t)

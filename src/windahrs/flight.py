@@ -6,7 +6,9 @@ vector (float seconds), the site (gravity, magnetic field), and optionally the t
 Every source, simulator or log reader, produces one; every estimator consumes one.
 
 Validation happens once, at construction. Errors are :class:`FlightError` and name the
-field, what was expected and what was found.
+field, what was expected and what was found. Constructors repair nothing (time stamps must
+be strictly increasing); repairing a glitch of the input, counted in ``Flight.repairs``,
+is the edge's job (the readers, :meth:`Flight.from_arrays`; :mod:`windahrs.repair`).
 
 NaN policy: a sensor sample (a row) with a NaN in any component is a *missing* sample;
 estimators skip it and count it. Time stamps, truth and the site must be finite. Infinite
@@ -14,6 +16,8 @@ values are never accepted.
 
 Units: SI (rad/s, m/s^2, tesla, m/s, rad). The plausibility checks below catch the usual
 slips (deg/s for rad/s, g for m/s^2, microtesla or gauss for tesla) and say how to fix them.
+They look at the bulk of the data (a median, or the share of samples beyond the sensor's
+range), never at one sample: a single spike is a glitch, not a unit.
 """
 
 from __future__ import annotations
@@ -33,6 +37,21 @@ from windahrs.conventions import (
     MAG_RELATIVE_UNITS,
     MAG_UNITS,
     P_FLU_FRD,
+)
+from windahrs.repair import (
+    ACCEL_RANGE,
+    AIRSPEED_RANGE,
+    ANGLE_RANGE,
+    GNSS_VELOCITY_RANGE,
+    GYRO_RANGE,
+    MAG_RANGE,
+    REPAIR_KINDS,
+    SPIKE_SHARE,
+    RepairLog,
+    beyond_range,
+    finite_rows,
+    is_bulk,
+    repairs_text,
 )
 
 __all__ = [
@@ -68,7 +87,7 @@ def _set(obj: object, name: str, value: object) -> None:
     object.__setattr__(obj, name, value)
 
 
-def _as_array(name: str, value: ArrayLike, ndim: int, width: int | None) -> F64:
+def _as_array(name: str, value: ArrayLike, ndim: int, width: int | None, *, allow_inf: bool = False) -> F64:
     try:
         a = np.ascontiguousarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -76,7 +95,7 @@ def _as_array(name: str, value: ArrayLike, ndim: int, width: int | None) -> F64:
     shape = "(N,)" if ndim == 1 else f"(N, {width})"
     if a.ndim != ndim or (width is not None and a.shape[-1] != width):
         raise FlightError(name, f"shape {shape}", str(a.shape))
-    if np.isinf(a).any():
+    if not allow_inf and np.isinf(a).any():
         i = int(np.argwhere(np.isinf(a))[0][0])
         raise FlightError(name, "finite values or NaN for a missing sample", f"inf at row {i}")
     return a
@@ -97,6 +116,19 @@ def _check_time(name: str, t: ArrayLike) -> F64:
     return a
 
 
+def _check_range(name: str, a: F64 | None, limit: float, unit: str) -> None:
+    """FlightError naming the first row of ``a`` with a component beyond the sensor range."""
+    if a is None:
+        return
+    over, _ = beyond_range(a, limit)
+    if over.any():
+        i = int(np.argmax(over))
+        raise FlightError(
+            name, f"|component| within {limit:.4g} {unit} (the sensor's range, windahrs.repair)",
+            f"{float(np.nanmax(np.abs(a[i]))):.4g} at row {i} (strict=False sets such a sample to NaN)",
+        )
+
+
 def _check_len(name: str, a: F64, n: int, tname: str) -> None:
     if a.shape[0] != n:
         raise FlightError(name, f"{n} rows (one per {tname} sample)", f"{a.shape[0]} rows")
@@ -106,6 +138,21 @@ def _check_finite(name: str, a: F64) -> None:
     if not np.isfinite(a).all():
         i = int(np.argwhere(~np.isfinite(a))[0][0])
         raise FlightError(name, "finite values", f"NaN at row {i}")
+
+
+def _check_bulk(name: str, a: F64, limit: float, expected: str, hint: str = "") -> None:
+    """A unit check on the bulk of the data: FlightError when the rows of ``a`` with a
+    component beyond ``limit`` are its bulk (:func:`~windahrs.repair.is_bulk`: more than
+    SPIKE_SHARE of the finite rows and more than one; fewer are spikes, left to the edge's
+    repair)."""
+    over, share = beyond_range(a, limit)
+    if is_bulk(over, share):
+        peak = float(np.nanmax(np.abs(a[over])))
+        raise FlightError(
+            name,
+            f"{expected} (|component| within {limit:.4g} {expected} on {100 * (1 - SPIKE_SHARE):g} % of the samples)",
+            f"{100 * share:.3g} % beyond, max {peak:.4g}{hint}",
+        )
 
 
 def _median_norm(a: F64) -> float:
@@ -141,13 +188,7 @@ class ImuStream:
         f = _as_array("imu.f_b", self.f_b, 2, 3)
         _check_len("imu.w_b", w, len(t), "imu.t")
         _check_len("imu.f_b", f, len(t), "imu.t")
-        wn = float(np.nanmax(np.linalg.norm(w, axis=1))) if np.isfinite(w).any() else 0.0
-        if wn > 50.0:
-            raise FlightError(
-                "imu.w_b",
-                "rad/s (|w| below 50 rad/s)",
-                f"max |w| = {wn:.4g}: deg/s? multiply by pi/180",
-            )
+        _check_bulk("imu.w_b", w, GYRO_RANGE, "rad/s", ": deg/s? multiply by pi/180")
         fn = _median_norm(f)
         if np.isfinite(fn) and not 2.0 < fn < 300.0:
             hint = ": in g? multiply by 9.80665" if 0.2 < fn <= 2.0 else ""
@@ -193,9 +234,7 @@ class GnssStream:
         t = _check_time("gnss.t", self.t)
         v = _as_array("gnss.v_n", self.v_n, 2, 3)
         _check_len("gnss.v_n", v, len(t), "gnss.t")
-        vmax = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else 0.0
-        if vmax > 400.0:
-            raise FlightError("gnss.v_n", "m/s (below 400)", f"max |component| = {vmax:.4g}")
+        _check_bulk("gnss.v_n", v, GNSS_VELOCITY_RANGE, "m/s")
         _set(self, "t", t)
         _set(self, "v_n", v)
 
@@ -222,8 +261,7 @@ class AirDataStream:
         t = _check_time("air.t", self.t)
         tas = _as_array("air.tas", self.tas, 1, None)
         _check_len("air.tas", tas, len(t), "air.t")
-        if np.isfinite(tas).any() and float(np.nanmax(np.abs(tas))) > 400.0:
-            raise FlightError("air.tas", "m/s (below 400)", f"max {float(np.nanmax(tas)):.4g}")
+        _check_bulk("air.tas", tas, AIRSPEED_RANGE, "m/s")
         _set(self, "t", t)
         _set(self, "tas", tas)
         for name in ("aoa", "sideslip"):
@@ -232,12 +270,7 @@ class AirDataStream:
                 continue
             a = _as_array(f"air.{name}", v, 1, None)
             _check_len(f"air.{name}", a, len(t), "air.t")
-            if np.isfinite(a).any() and float(np.nanmax(np.abs(a))) > np.pi:
-                raise FlightError(
-                    f"air.{name}",
-                    "rad (|angle| <= pi)",
-                    f"max {float(np.nanmax(np.abs(a))):.4g}: degrees?",
-                )
+            _check_bulk(f"air.{name}", a, ANGLE_RANGE, "rad", ": degrees?")
             _set(self, name, a)
         if (self.aoa is None) != (self.sideslip is None):  # one vane: the other angle NaN
             _set(self, "aoa" if self.aoa is None else "sideslip", np.full(len(t), np.nan))
@@ -381,7 +414,10 @@ class Flight:
 
     imu is required; mag, gnss, air are optional streams. truth (simulation) and
     reference (real data) are what estimates are scored against. meta: free-form
-    str -> str/float/int description (source file, vehicle, scenario, seed).
+    str -> str/float/int description (source file, vehicle, scenario, seed). repairs: what
+    the edge repaired in the input (:mod:`windahrs.repair`), stream name -> kind
+    (:data:`~windahrs.repair.REPAIR_KINDS`) -> count, e.g. ``{"imu": {"duplicates": 2}}``;
+    empty when nothing was repaired (and for a Flight built from its constructors).
     """
 
     imu: ImuStream
@@ -393,6 +429,7 @@ class Flight:
     ref_wind: WindStream | None = None
     site: Site = field(default_factory=Site)
     meta: dict[str, Any] = field(default_factory=dict)
+    repairs: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         types = {
@@ -414,6 +451,7 @@ class Flight:
         for k, v in self.meta.items():
             if not isinstance(k, str) or not isinstance(v, str | int | float | bool):
                 raise FlightError(f"meta[{k!r}]", "str, int, float or bool", type(v).__name__)
+        _set(self, "repairs", _check_repairs(self.repairs))
 
     @classmethod
     def from_arrays(
@@ -432,11 +470,12 @@ class Flight:
         reference_kind: ReferenceKind = "mocap",
         site: Site | None = None,
         meta: dict[str, Any] | None = None,
+        strict: bool = False,
     ) -> Flight:
         """A Flight from raw IMU arrays, as they come from a logger or ``vqf``'s
         ``VQF(Ts).updateBatch(gyr, acc, mag)``.
 
-        t: (N,) s, strictly increasing; or give ``rate`` (Hz) instead for samples
+        t: (N,) s, increasing (see Repair below); or give ``rate`` (Hz) instead for samples
         ``k / rate``. gyro: (N, 3) body rate; accel: (N, 3) specific force (a resting
         sensor reads +g upward); mag: (N, 3) magnetic field on the same time grid, or
         None. Rows with NaN are missing samples. Units (keyword-only): ``gyro_units``
@@ -450,25 +489,48 @@ class Flight:
         to ENU for "FLU", as ROS logs it), labelled ``reference_kind``. site: gravity and
         Earth's field (default: standard gravity, field unknown).
 
+        Repair (the default, ``strict=False``), as the readers do (:mod:`windahrs.repair`),
+        counted in ``Flight.repairs`` (time repairs under "imu": the magnetometer and the
+        reference share its grid): rows with a non-finite time are dropped, rows out of
+        order sorted, repeated stamps keep their first row; rows with inf become NaN; a
+        sample beyond the sensor's range (:data:`~windahrs.repair.GYRO_RANGE`,
+        :data:`~windahrs.repair.ACCEL_RANGE`, :data:`~windahrs.repair.MAG_RANGE`, after the
+        unit conversion) becomes NaN. ``strict=True`` repairs nothing and refuses each of
+        these instead.
+
         Raises :class:`FlightError` (a ValueError) naming the argument and what was found:
-        wrong shapes or lengths, only NaN, time not increasing, an unknown unit or frame.
+        wrong shapes or lengths, only NaN, an unknown unit or frame, units wrong on the bulk
+        of the data; with ``strict=True`` also time not increasing, inf values and samples
+        beyond the sensor's range.
         """
         if (t is None) == (rate is None):
             found = "both" if t is not None else "neither"
             raise FlightError("t, rate", "time stamps t (s) or a sample rate rate (Hz), one of them", found)
-        g = _raw_rows("gyro", gyro)
+        log = RepairLog()
+        g = _raw_rows("gyro", gyro, strict=strict)
         n = len(g)
-        a = _raw_rows("accel", accel, n)
-        m = _raw_rows("mag", mag, n) if mag is not None else None
+        a = _raw_rows("accel", accel, n, strict=strict)
+        m = _raw_rows("mag", mag, n, strict=strict) if mag is not None else None
+        q = None
+        if reference is not None:
+            q = _as_array("reference", reference, 2, 4, allow_inf=not strict)
+            if len(q) != n:
+                raise FlightError("reference", f"{n} rows (one per gyro row)", f"{len(q)} rows")
         if rate is not None:
             r = float(rate)
             if not (np.isfinite(r) and r > 0):
                 raise FlightError("rate", "a sample rate > 0 Hz", repr(rate))
             t_s = np.arange(n, dtype=np.float64) / r
         else:
-            t_s = _as_array("t", t, 1, None)  # type: ignore[arg-type]
+            t_s = _as_array("t", t, 1, None, allow_inf=not strict)  # type: ignore[arg-type]
             if len(t_s) != n:
                 raise FlightError("t", f"{n} time stamps (one per gyro row)", f"{len(t_s)}")
+            if not strict:
+                rows = [x for x in (g, a, m, q) if x is not None]
+                t_s, rows = log.series("imu", t_s, *rows)
+                g, a = rows[0], rows[1]
+                m = rows[2] if m is not None else None
+                q = rows[-1] if q is not None else None
             t_s = _check_time("t", t_s)
         g = g * _unit("gyro_units", gyro_units, GYRO_UNITS)
         a = a * _unit("accel_units", accel_units, ACCEL_UNITS)
@@ -478,11 +540,12 @@ class Flight:
             m = mag_to_tesla(m, mag_units, site_mag_n=site_field, name="mag_units", meta=extra_meta)
         if frame not in ("FRD", "FLU"):
             raise FlightError("frame", "'FRD' or 'FLU'", repr(frame))
+        if not strict:
+            g, a = log.rows("imu", g, GYRO_RANGE), log.rows("imu", a, ACCEL_RANGE)
+            m = None if m is None else log.rows("mag", m, MAG_RANGE)
+            q = None if q is None else finite_rows(q)
         ref = None
-        if reference is not None:
-            q = _as_array("reference", reference, 2, 4)
-            if len(q) != n:
-                raise FlightError("reference", f"{n} rows (one per gyro row)", f"{len(q)} rows")
+        if q is not None:
             if frame == "FLU":
                 from windahrs.rotation import quat_enu_flu_to_ned_frd
 
@@ -502,12 +565,18 @@ class Flight:
             for hint, switch in _UNIT_HINTS.items():
                 found = found.replace(hint, switch)
             raise FlightError(name, exc.expected, found) from None
+        if strict:  # after the unit checks, whose hints say more than a range
+            for name, x, limit, unit in (
+                ("gyro", g, GYRO_RANGE, "rad/s"), ("accel", a, ACCEL_RANGE, "m/s^2"), ("mag", m, MAG_RANGE, "T")
+            ):
+                _check_range(name, x, limit, unit)
         return cls(
             imu=imu,
             mag=mag_stream,
             reference=ref,
             site=site if site is not None else Site(),
             meta={"source": "arrays", **extra_meta, **(meta or {})},
+            repairs=log.counts,
         )
 
     @property
@@ -549,9 +618,36 @@ class Flight:
             lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n = {field_text}")
         else:
             lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n unknown")
+        for stream, counts in self.repairs.items():
+            lines.append(f"repairs    {repairs_text({stream: counts})}")
         for k, v in sorted(self.meta.items()):
             lines.append(f"meta       {k} = {v}")
         return "\n".join(lines)
+
+
+#: The parts of a Flight whose input the edge may repair (keys of ``Flight.repairs``).
+REPAIRABLE: tuple[str, ...] = ("imu", "mag", "gnss", "air", "truth", "reference", "ref_wind")
+
+
+def _check_repairs(repairs: object) -> dict[str, dict[str, int]]:
+    """``Flight.repairs`` validated, as plain ints, zero counts and empty streams left out."""
+    if not isinstance(repairs, dict):
+        raise FlightError("repairs", "a dict stream -> {kind: count}", type(repairs).__name__)
+    out: dict[str, dict[str, int]] = {}
+    for stream, counts in repairs.items():
+        if stream not in REPAIRABLE:
+            raise FlightError("repairs", f"streams among {REPAIRABLE}", repr(stream))
+        if not isinstance(counts, dict):
+            raise FlightError(f"repairs[{stream!r}]", "a dict kind -> count", type(counts).__name__)
+        for kind, n in counts.items():
+            if kind not in REPAIR_KINDS:
+                raise FlightError(f"repairs[{stream!r}]", f"kinds among {REPAIR_KINDS}", repr(kind))
+            if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0:
+                raise FlightError(f"repairs[{stream!r}][{kind!r}]", "a count (int >= 0)", repr(n))
+        kept = {kind: int(counts[kind]) for kind in REPAIR_KINDS if counts.get(kind)}
+        if kept:
+            out[stream] = kept
+    return out
 
 
 _RAW_NAMES = {"imu.w_b": "gyro", "imu.f_b": "accel", "mag.mag_b": "mag"}
@@ -563,11 +659,12 @@ _UNIT_HINTS = {
 }
 
 
-def _raw_rows(name: str, value: ArrayLike | None, n: int | None = None) -> F64:
-    """(N, 3) float rows of a raw sensor array, at least one of them finite."""
+def _raw_rows(name: str, value: ArrayLike | None, n: int | None = None, *, strict: bool = True) -> F64:
+    """(N, 3) float rows of a raw sensor array, at least one of them finite (inf refused
+    when ``strict``)."""
     if value is None:
         raise FlightError(name, "an (N, 3) array", "none")
-    a = _as_array(name, value, 2, 3)
+    a = _as_array(name, value, 2, 3, allow_inf=not strict)
     if n is not None and len(a) != n:
         raise FlightError(name, f"{n} rows (one per gyro row)", f"{len(a)} rows")
     if len(a) == 0:

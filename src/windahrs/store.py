@@ -41,8 +41,10 @@ __all__ = [
     "load_flight",
     "read_errors",
     "read_record",
+    "read_repairs",
     "save_flight",
     "write_record",
+    "write_repairs",
 ]
 
 FLIGHT_FORMAT = "windahrs.flight"
@@ -154,7 +156,26 @@ def save_flight(flight: Flight, path: str | os.PathLike[str]) -> Path:
         meta = f.create_group("meta")
         for k, v in flight.meta.items():
             meta.attrs[k] = v
+        write_repairs(f, flight.repairs)
     return Path(path)
+
+
+def write_repairs(f: h5py.Group, repairs: dict[str, dict[str, int]]) -> None:
+    """``repairs`` (stream -> kind -> count) as group ``repairs`` with one subgroup per
+    stream, the counts as its attributes."""
+    g = f.create_group("repairs")
+    for stream, counts in repairs.items():
+        sub = g.create_group(stream)
+        for kind, n in counts.items():
+            sub.attrs[kind] = int(n)
+
+
+def read_repairs(f: h5py.Group) -> dict[str, dict[str, int]]:
+    """Inverse of :func:`write_repairs`; empty for files written before it existed."""
+    g = f.get("repairs")
+    if not isinstance(g, h5py.Group):
+        return {}
+    return {stream: {k: int(_plain(v)) for k, v in sub.attrs.items()} for stream, sub in g.items()}
 
 
 @contextlib.contextmanager
@@ -197,7 +218,7 @@ def load_flight(path: str | os.PathLike[str]) -> Flight:
                 raise StoreError(f"{path}:/{name}: expected a group, found {type(group).__name__}")
             parts[name] = read_record(group, cls, f"{path}:/{name}")
         meta = {k: _plain(v) for k, v in f["meta"].attrs.items()} if "meta" in f else {}
-        return Flight(**parts, meta=meta)
+        return Flight(**parts, meta=meta, repairs=read_repairs(f))
 
 
 @contextlib.contextmanager

@@ -249,6 +249,7 @@ class Vqf(LibraryEstimator):
             gyro_bias_b=bias,
             skipped=skipped,
             params=self.params_text(),
+            repairs={k: dict(v) for k, v in flight.repairs.items()},
         )
 
 
@@ -332,4 +333,5 @@ class VqfOffline(LibraryEstimator):
             gyro_bias_b=bias,
             skipped=skipped,
             params=self.params_text(),
+            repairs={k: dict(v) for k, v in flight.repairs.items()},
         )

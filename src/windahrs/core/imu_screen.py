@@ -8,10 +8,10 @@ Every IMU sample (finite: NaN ones are skipped before) therefore passes this scr
 the prediction. It is held, and the last propagated sample is propagated in its place, when:
 
 1. **beyond range:** a gyro axis above ``gyro_range`` or an accelerometer axis above
-   ``accel_range``. The sensor cannot output that (defaults: 2000 deg/s and 32 g, the
-   widest full scales of the MEMS IMUs autopilots carry: MPU-6000/9250, ICM-20602/42688,
-   BMI088 +-2000 deg/s; ICM-20649 on the Cube +-30 g, ICM-45686 +-32 g). A sample *at* its
-   range (a clipped one) is not beyond it and passes.
+   ``accel_range``. The sensor cannot output that (defaults: the ranges of the readers' edge
+   repair, :mod:`windahrs.repair`, which sets such samples to NaN in a log: the widest full
+   scales of autopilot IMUs plus 10 %; the screen catches them in flights built otherwise).
+   A sample *at* its range (a clipped one) is not beyond it and passes.
 2. **a spike:** the change of the angular rate or of the specific force since the last
    propagated sample exceeds ``imu_spike_gate`` times the root mean square of the recent
    changes (:data:`TAU_CHANGES` s), or :data:`FLOOR_W` / :data:`FLOOR_F`, whichever is
@@ -22,8 +22,12 @@ the prediction. It is held, and the last propagated sample is propagated in its 
    impact's ringing), propagated one sample late rather than lost: its step's excess
    rotation (and, for the INS, velocity increment) is added to the state then.
 
-The recent changes' mean square is taken over propagated samples, each change counted at
-most at the gate (a spike does not open the gate for the next one). Steps longer than
+A dropped sample may still have been motion: what it would have turned the attitude (and
+moved the INS velocity) by is added to their spread as a held sample's is
+(:func:`windahrs.core.predict.add_unmeasured_motion`), so that a wrong verdict costs a
+correction by the aiding, not a lasting error. The recent changes' mean square is taken over
+every sample, each change counted at most at the gate (a spike does not open the gate for the
+next one; vibration that sets in opens it by a third per sample). Steps longer than
 :data:`GAP` s are not screened: the motion between such samples was not measured. Every
 held sample is logged (the ``imu`` log: the two changes and the outcome: 1 beyond range,
 2 a spike, 3 motion propagated late), which the Estimate carries in ``alerts["imu"]``.
@@ -54,7 +58,9 @@ from windahrs.core.layout import (
     S_NHELD,
     W_IMU,
     W_NU,
+    X_DF,
     X_DTPEND,
+    X_DW,
     X_FLAST,
     X_PEND,
     X_Q,
@@ -64,9 +70,10 @@ from windahrs.core.layout import (
     X_V,
     X_WLAST,
 )
+from windahrs.core.predict import add_unmeasured_motion
 from windahrs.core.quat import _dcm9, _qexp, _qmul, _qnormalize
 
-__all__ = ["FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
+__all__ = ["CLIP_F", "CLIP_W", "FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
 
 #: The fields of EskfParams the screen reads.
 PARAMS = ("gyro_range", "accel_range", "imu_spike_gate")
@@ -80,6 +87,11 @@ TAU_CHANGES = 1.0
 #: glitch turns the attitude by less than 0.3 deg at 200 Hz.
 FLOOR_W = 1.0
 FLOOR_F = 9.80665
+#: An axis repeating a magnitude of at least this exactly is clipped, rad/s and m/s^2: the
+#: smallest full scales autopilot IMUs are set to (125 deg/s, BMI088; 2 g); noise moves a live
+#: axis by converter steps at every sample (windahrs.flags.CLIP_MIN_W, CLIP_MIN_F: the same).
+CLIP_W = 125.0 * math.pi / 180.0
+CLIP_F = 2.0 * 9.80665
 #: Longer steps are not screened, s (the motion between the samples was not measured).
 GAP = 0.1
 
@@ -121,6 +133,22 @@ def _catch_up(cfg, x, flags, dt, w, f):
 
 
 @njit(**_JIT)
+def _clipped(cfg, x, P, work, row, dt):
+    """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) since the last
+    sample are clipped: the true value is beyond it by as much as it again, unknown, and
+    that step's motion becomes spread, as a held sample's would (PX4 EKF2 likewise raises
+    the accelerometer's noise while it clips)."""
+    clip = False
+    for a in range(3):
+        dw = abs(row[a]) if abs(row[a]) >= CLIP_W and abs(row[a]) == abs(x[X_WLAST + a]) else 0.0
+        df = abs(row[3 + a]) if abs(row[3 + a]) >= CLIP_F and abs(row[3 + a]) == abs(x[X_FLAST + a]) else 0.0
+        x[X_DW + a], x[X_DF + a] = dw, df
+        clip = clip or dw > 0 or df > 0
+    if clip:
+        add_unmeasured_motion(cfg, x, P, work, dt)
+
+
+@njit(**_JIT)
 def _change2(row, x, i_row, i_x):
     """|row[i_row:i_row+3] - x[i_x:i_x+3]|^2."""
     s = 0.0
@@ -131,7 +159,7 @@ def _change2(row, x, i_row, i_x):
 
 
 @njit(**_JIT)
-def screen_imu(cfg, prm, x, flags, inn, acc, work, t, row):
+def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
     """The IMU sample to propagate at t s in place of ``row`` = [w_b, f_b] (finite): ``row``
     itself, or with the last propagated angular rate or specific force in place of a held
     one (module docstring)."""
@@ -150,11 +178,21 @@ def screen_imu(cfg, prm, x, flags, inn, acc, work, t, row):
             _catch_up(cfg, x, flags, x[X_DTPEND], cw, cf)
             inn[cfg[C_OFF + INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
             dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
+        dropw, dropf = flags[S_NHELD] & 1 != 0 and not cw, flags[S_NHELD] & 2 != 0 and not cf
+        if (dropw or dropf) and flags[S_INIT] == 1:
+            # a dropped sample may still have been motion: what it would have moved the
+            # state by becomes spread (X_DW, X_DF are the kernel's to overwrite at this sample)
+            for a in range(3):
+                x[X_DW + a] = x[X_PEND + a] if dropw else 0.0
+                x[X_DF + a] = x[X_PEND + 3 + a] if dropf else 0.0
+            add_unmeasured_motion(cfg, x, P, work, x[X_DTPEND])
     gr, ar = prm[R_GYRO_RANGE], prm[R_ACC_RANGE]
     beyond_w, beyond_f = False, False
     for a in range(3):
         beyond_w = beyond_w or abs(row[a]) > gr
         beyond_f = beyond_f or abs(row[3 + a]) > ar
+    if flags[S_INIT] == 1 and 0 < dt <= GAP:
+        _clipped(cfg, x, P, work, row, dt)
     hold_w, hold_f = beyond_w, beyond_f
     if k > 0 and 0 < dt <= GAP:
         hold_w = hold_w or dw2 > gw2

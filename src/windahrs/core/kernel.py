@@ -369,7 +369,7 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
 def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
     screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid source."""
-    row = screen_imu(cfg, prm, x, flags, inn, acc, work, t, row)
+    row = screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row)
     dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
     if dt < 0:
         return

@@ -403,8 +403,16 @@ def add_held_sample_noise(cfg, prm, x, P, work, dt):
     (rotated to NED), with dw, df the changes of the gyro and accelerometer samples since the
     previous ones (x[X_DW], x[X_DF]). Additive form: ``1/4 Xi(q) diag(d) Xi(q)^T`` on the
     quaternion (tangent to q, so adding it after the normalisation changes nothing else)."""
-    if not dt > prm[R_HOLD_DT]:
-        return
+    if dt > prm[R_HOLD_DT]:
+        add_unmeasured_motion(cfg, x, P, work, dt)
+
+
+@njit(**_JIT)
+def add_unmeasured_motion(cfg, x, P, work, dt):
+    """The noise of motion over a step of dt s that the filter did not propagate, per body
+    axis ``(dw dt)^2 / 3`` on the attitude and ``(df dt)^2 / 3`` on the INS velocity, with
+    dw, df (x[X_DW], x[X_DF]) the rate and specific force it may have missed
+    (:func:`add_held_sample_noise`; the IMU screen's dropped spikes)."""
     d0 = held_sample_variance(x[X_DW], dt)
     d1 = held_sample_variance(x[X_DW + 1], dt)
     d2 = held_sample_variance(x[X_DW + 2], dt)

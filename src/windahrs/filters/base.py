@@ -434,4 +434,5 @@ def replay(
         innovations=s.innovations(),
         skipped=dict(s.skipped),
         params=est.params_text(),
+        repairs={k: dict(v) for k, v in flight.repairs.items()},
     )

@@ -12,8 +12,9 @@ error theta moves it by ``2 g sin(theta / 2)``, read back as an angle. A disagre
 Within ``TILT_TAU_S`` of a GNSS outage in a flight that has GNSS the check is off: the
 acceleration is not measured then, and a turn held through the outage would read as a tilt.
 
-:func:`checked` adds the alerts to an Estimate and emits each of ``Estimate.warnings()`` as an
-:class:`~windahrs.estimate.EstimatorWarning`.
+:func:`checked` adds the alerts and the flight's repairs to an Estimate and emits each of
+``Estimate.warnings()`` as an :class:`~windahrs.estimate.EstimatorWarning`, but the repairs:
+they are the flight's, the same for every estimator, and said once where the flight is read.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from windahrs.flags import absent_mask, estimate_flags
 from windahrs.flight import Flight
 from windahrs.rotation import quat_rotate
 
-__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts"]
+__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts", "with_repairs"]
 
 F64 = NDArray[np.float64]
 
@@ -118,14 +119,21 @@ def tilt_alerts(
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
+def with_repairs(est: Estimate, flight: Flight) -> Estimate:
+    """``est`` carrying ``flight.repairs`` (a copy)."""
+    if not flight.repairs:
+        return est
+    return dataclasses.replace(est, repairs={k: dict(v) for k, v in flight.repairs.items()})
+
+
 def checked(est: Estimate, flight: Flight) -> Estimate:
-    """``est`` with its tilt alerts (``alerts["tilt"]``) and its per-sample flags
-    (:func:`windahrs.flags.estimate_flags`), each of its warnings emitted as an
-    EstimatorWarning."""
+    """``est`` with its tilt alerts (``alerts["tilt"]``), its per-sample flags
+    (:func:`windahrs.flags.estimate_flags`) and the flight's repairs, each of its warnings but
+    the repairs emitted as an EstimatorWarning."""
     rows = tilt_alerts(est, flight)
     if len(rows):
         est = dataclasses.replace(est, alerts={**est.alerts, "tilt": rows})
-    est = dataclasses.replace(est, flags=estimate_flags(est, flight))
-    for line in est.warnings():
+    est = dataclasses.replace(with_repairs(est, flight), flags=estimate_flags(est, flight))
+    for line in est.warnings(repairs=False):
         warnings.warn(line, EstimatorWarning, stacklevel=3)
     return est

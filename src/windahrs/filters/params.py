@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from windahrs.conventions import DEG, G0
+from windahrs.repair import ACCEL_RANGE, GYRO_RANGE
 
 __all__ = [
     "ARDUPILOT_MAP", "FLIGHT_PARAMS", "LOW_IMU_RATE_HZ", "PX4_MAP", "EskfParams", "changes_from_mapping",
@@ -160,8 +161,9 @@ class EskfParams:
 
     IMU screen (:mod:`windahrs.core.imu_screen`; the same filters): a sample is held, and
     the last propagated one propagated in its place, when an axis is beyond gyro_range rad/s
-    or accel_range m/s^2 (defaults 2000 deg/s and 32 g: the widest full scales of the MEMS
-    IMUs autopilots carry), or when its change since the last propagated sample exceeds
+    or accel_range m/s^2 (defaults: the ranges beyond which the readers' edge repair sets a
+    sample to NaN, :data:`windahrs.repair.GYRO_RANGE` and :data:`windahrs.repair.ACCEL_RANGE`,
+    the widest full scales of autopilot IMUs plus 10 %), or when its change since the last propagated sample exceeds
     imu_spike_gate times the root mean square of the recent changes (default 8: Gaussian
     noise never gets there, a sinusoidal vibration reaches 1.4; 0: no spike test) and the
     next sample does not confirm it as motion. Held samples are logged in
@@ -216,8 +218,8 @@ class EskfParams:
     accel_noise_online: bool = False
     reset_timeout: float = 5.0
     unmeasured_motion_dt: float = 1.0 / 50.0
-    gyro_range: float = 2000.0 * DEG
-    accel_range: float = 32.0 * G0
+    gyro_range: float = GYRO_RANGE
+    accel_range: float = ACCEL_RANGE
     imu_spike_gate: float = 8.0
 
     def __post_init__(self) -> None:

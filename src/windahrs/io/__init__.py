@@ -5,6 +5,13 @@ float seconds from the recording's start. Each source's own attitude (autopilot 
 motion capture, simulator truth) becomes a labelled :class:`~windahrs.flight.Reference`,
 and a logged wind estimate becomes ``Flight.ref_wind`` (velocity of the air, NED).
 
+Every reader repairs what a real log gets wrong instead of refusing it, with one policy
+(:mod:`windahrs.repair`) and a count per stream and kind in ``Flight.repairs``: time stamps
+out of order sorted, repeated ones dropped, infinite values and samples beyond the sensor's
+range set to NaN. A log cut inside its last message (ULog, DataFlash) or row (CSV) is read up
+to the last complete one with a :class:`~windahrs.io.edge.TruncatedLogWarning` saying how
+many bytes or rows were dropped.
+
 :func:`read_flight` picks the reader from the path:
 
 ==============  ===========================================================================
@@ -36,12 +43,13 @@ from windahrs.io.ansfl import ANSFL_GT_FILE, is_ansfl_dir, read_ansfl
 from windahrs.io.broad import broad_movement_mask, read_broad
 from windahrs.io.csv import ALFA_IMU_FILE, CSV_MANIFEST, read_alfa, read_csv_dir
 from windahrs.io.dataflash import read_dataflash
-from windahrs.io.edge import LogFormatError
+from windahrs.io.edge import LogFormatError, TruncatedLogWarning
 from windahrs.io.ulog import read_ulog
 
 __all__ = [
     "FORMATS",
     "LogFormatError",
+    "TruncatedLogWarning",
     "broad_movement_mask",
     "detect_format",
     "read_alfa",

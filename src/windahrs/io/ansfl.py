@@ -58,11 +58,11 @@ from windahrs.flight import Flight, GnssStream, ImuStream, Reference
 from windahrs.io.csv import _read_table, _seconds, _stack
 from windahrs.io.edge import (
     LogFormatError,
-    finite_rows,
     flight_errors_name,
     invalid_quat_rows,
     velocity_from_positions,
 )
+from windahrs.repair import ACCEL_RANGE, GNSS_VELOCITY_RANGE, GYRO_RANGE, RepairLog
 from windahrs.rotation import quat_from_euler
 
 __all__ = ["ANSFL_GNSS_TIMING_SIGMA", "ANSFL_GT_FILE", "ansfl_imu_files", "is_ansfl_dir", "read_ansfl"]
@@ -147,10 +147,11 @@ def read_ansfl(path: str | os.PathLike[str], *, imu: int | None = None, gnss: bo
         "reference.heading_free": "no magnetometer: the estimators cannot share the compass's heading datum",
         "clocks": "imu: Xsens DOT; gnss, reference: DJI (offset not removed, see --align)",
     }
-    t_imu, v_imu = _seconds(imu_table, _S, 0, "imu", meta)
-    t_gt, v_gt = _seconds(gt_table, _S, 0, "reference", meta)
-    w_flu = finite_rows(_stack(v_imu, _IMU_GYRO)) * DEG
-    f_flu = finite_rows(_stack(v_imu, _IMU_ACCEL))
+    rep = RepairLog()
+    t_imu, v_imu = _seconds(imu_table, _S, 0, "imu", meta, rep)
+    t_gt, v_gt = _seconds(gt_table, _S, 0, "reference", meta, rep)
+    w_flu = rep.rows("imu", _stack(v_imu, _IMU_GYRO) * DEG, GYRO_RANGE)
+    f_flu = rep.rows("imu", _stack(v_imu, _IMU_ACCEL), ACCEL_RANGE)
     q, n_bad = invalid_quat_rows(quat_from_euler(_stack(v_gt, _GT_EULER) * DEG))
     if n_bad:
         meta["reference.invalid_quaternions"] = n_bad
@@ -160,10 +161,12 @@ def read_ansfl(path: str | os.PathLike[str], *, imu: int | None = None, gnss: bo
     with flight_errors_name(d):
         gnss_stream = None
         if gnss:
-            gnss_stream = GnssStream(t=t_gt, v_n=velocity_from_positions(t_gt, _stack(v_gt, _GT_POSITION)))
+            v_n = velocity_from_positions(t_gt, _stack(v_gt, _GT_POSITION))
+            gnss_stream = GnssStream(t=t_gt, v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE))
         return Flight(
             imu=ImuStream(t=t_imu, w_b=w_flu @ P_FLU_FRD.T, f_b=f_flu @ P_FLU_FRD.T),
             gnss=gnss_stream,
             reference=Reference(t=t_gt, q_nb=q, kind="autopilot", heading_free=True),
             meta=meta,
+            repairs=rep.counts,
         )

@@ -30,11 +30,11 @@ from numpy.typing import NDArray
 from windahrs.flight import Flight, ImuStream, MagStream, Reference, Site
 from windahrs.io.edge import (
     LogFormatError,
-    finite_rows,
     flight_errors_name,
     guard,
     invalid_quat_rows,
 )
+from windahrs.repair import ACCEL_RANGE, GYRO_RANGE, MAG_RANGE, RepairLog
 from windahrs.rotation import quat_nav_enu_to_ned
 
 __all__ = ["BROAD_DATASETS", "broad_movement_mask", "read_broad"]
@@ -82,10 +82,13 @@ def read_broad(
     }
     if n_bad:
         meta["reference.invalid_quaternions"] = n_bad
+    rep = RepairLog()
     with flight_errors_name(p):
         return Flight(
-            imu=ImuStream(t=t, w_b=finite_rows(raw["imu_gyr"]), f_b=finite_rows(raw["imu_acc"])),
-            mag=MagStream(t=t, mag_b=finite_rows(raw["imu_mag"]) * _MICROTESLA),
+            imu=ImuStream(
+                t=t, w_b=rep.rows("imu", raw["imu_gyr"], GYRO_RANGE), f_b=rep.rows("imu", raw["imu_acc"], ACCEL_RANGE)
+            ),
+            mag=MagStream(t=t, mag_b=rep.rows("mag", raw["imu_mag"] * _MICROTESLA, MAG_RANGE)),
             reference=Reference(
                 t=t,
                 q_nb=q_ned,
@@ -95,6 +98,7 @@ def read_broad(
             ),
             site=Site(mag_n=None),
             meta=meta,
+            repairs=rep.counts,
         )
 
 

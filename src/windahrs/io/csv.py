@@ -46,11 +46,20 @@ from windahrs.flight import (
 )
 from windahrs.io.edge import (
     LogFormatError,
-    clean_series,
-    finite_rows,
     flight_errors_name,
     invalid_quat_rows,
     velocity_from_positions,
+    warn_truncated,
+)
+from windahrs.repair import (
+    ACCEL_RANGE,
+    AIRSPEED_RANGE,
+    ANGLE_RANGE,
+    GNSS_VELOCITY_RANGE,
+    GYRO_RANGE,
+    MAG_RANGE,
+    RepairLog,
+    finite_rows,
 )
 from windahrs.rotation import (
     dcm_from_quat,
@@ -99,6 +108,7 @@ class _Table:
     values: dict[str, F64]
     dropped_last_row: bool
     stripped: tuple[str, ...] = ()  # wanted columns whose header entry has blanks around
+    untimed_rows: int = 0  # rows dropped for an empty or non-finite time stamp
 
 
 def _read_table(
@@ -106,8 +116,10 @@ def _read_table(
 ) -> _Table:
     """Read ``time_col`` and ``columns`` of a CSV file with a header row.
 
-    Empty cells are NaN (missing samples). A final row with too few fields (a file cut
-    while being written) is dropped and flagged; any other malformed row is an error.
+    Empty cells are NaN (missing samples). A row whose time stamp is empty, NaN or inf
+    cannot be placed in time: it is dropped and counted (``untimed_rows``). A final row
+    with too few fields (a file cut while being written) is dropped and flagged; any other
+    malformed row is an error.
     Header names are compared after stripping blanks (spaces, tabs) around them; a column
     found only that way is named in one warning per file (``warn_stripped``; off for
     formats whose files are known to pad their header, e.g. ANSFL's DJI log).
@@ -168,11 +180,28 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
         for k, i in enumerate(idx):
             cells[k].append(row[i].strip())
     linenos = [n for n, _ in rows]
+    timed = [k for k, c in enumerate(cells[0]) if not _untimed(c)]
+    untimed = len(linenos) - len(timed)
+    if untimed:
+        cells = [[col[k] for k in timed] for col in cells]
+        linenos = [linenos[k] for k in timed]
+    if not linenos:
+        raise LogFormatError(path, f"no data rows with a time stamp in column {time_col!r}")
     time = _parse_time(path, time_col, cells[0], linenos)
     values = {
         c: _parse_floats(path, c, v, linenos) for c, v in zip(columns, cells[1:], strict=True)
     }
-    return _Table(path, time, values, dropped, stripped)
+    return _Table(path, time, values, dropped, stripped, untimed)
+
+
+def _untimed(cell: str) -> bool:
+    """An empty, NaN or infinite time stamp (a number, but not a time)."""
+    if not cell:
+        return True
+    try:
+        return not math.isfinite(float(cell))
+    except ValueError:
+        return False  # not a number: an error, named by _parse_time
 
 
 def _read_table_fast(path: Path, time_col: str, columns: Sequence[str]) -> _Table | None:
@@ -250,17 +279,17 @@ def _parse_floats(path: Path, name: str, cells: list[str], linenos: list[int]) -
 
 
 def _seconds(
-    table: _Table, scale_ns: int, origin_ns: int, name: str, meta: dict[str, Any]
+    table: _Table, scale_ns: int, origin_ns: int, name: str, meta: dict[str, Any], rep: RepairLog
 ) -> tuple[F64, dict[str, F64]]:
-    """Times in s from ``origin_ns`` (cleaned: sorted, duplicates dropped) and values."""
+    """Times in s from ``origin_ns`` (cleaned: sorted, duplicates dropped, counted in
+    ``rep``) and values."""
     keys = list(table.values)
-    t, vals, n_reordered, n_dup = clean_series(table.time, *[table.values[k] for k in keys])
-    if n_reordered:
-        meta[f"{name}.reordered"] = n_reordered
-    if n_dup:
-        meta[f"{name}.dropped_duplicates"] = n_dup
+    t, vals = rep.series(name, table.time, *[table.values[k] for k in keys])
+    rep.add(name, "unsortable", table.untimed_rows)
     if table.dropped_last_row:
         meta[f"{name}.dropped_truncated_row"] = 1
+        warn_truncated(table.path, f"its last row has too few fields: read up to line {len(table.time) + 1}, "
+                       "1 row dropped")
     if t.dtype.kind == "i":
         sec = (t * scale_ns - origin_ns).astype(np.float64) * 1e-9
     else:
@@ -379,24 +408,26 @@ def read_alfa(
             meta["failure_time"] = meta[f"failure_time.{first}"]
             meta["failure_type"] = first
 
+    rep = RepairLog()
+
     def sec(name: str) -> tuple[F64, dict[str, F64]]:
-        return _seconds(tables[name], 1, origin, name, meta)
+        return _seconds(tables[name], 1, origin, name, meta, rep)
 
     with flight_errors_name(d):
         t, v = sec("imu")
         imu = ImuStream(
             t=t,
-            w_b=finite_rows(_stack(v, _ALFA_GYRO)) * _FLU_TO_FRD,
-            f_b=finite_rows(_stack(v, _ALFA_ACCEL)) * _FLU_TO_FRD,
+            w_b=rep.rows("imu", _stack(v, _ALFA_GYRO) * _FLU_TO_FRD, GYRO_RANGE),
+            f_b=rep.rows("imu", _stack(v, _ALFA_ACCEL) * _FLU_TO_FRD, ACCEL_RANGE),
         )
         mag = gnss = air = reference = ref_wind = None
         if "mag" in tables:
             t, v = sec("mag")
-            m = finite_rows(_stack(v, _ALFA_MAG)) * _FLU_TO_FRD * mag_tesla_per_unit
+            m = rep.rows("mag", _stack(v, _ALFA_MAG) * _FLU_TO_FRD * mag_tesla_per_unit, MAG_RANGE)
             mag = MagStream(t=t, mag_b=m)
         if "gnss" in tables:
             t, v = sec("gnss")
-            gnss = GnssStream(t=t, v_n=vec_enu_to_ned(finite_rows(_stack(v, _ALFA_TWIST))))
+            gnss = GnssStream(t=t, v_n=vec_enu_to_ned(rep.rows("gnss", _stack(v, _ALFA_TWIST), GNSS_VELOCITY_RANGE)))
             # mavros fills z with 0 (no vertical speed in GPS_RAW_INT): flag, do not invent.
             up = gnss.v_n[:, 2]
             meta["gnss.vertical_measured"] = not bool(np.all(up[np.isfinite(up)] == 0.0))
@@ -404,7 +435,7 @@ def read_alfa(
             t, v = sec("air")
             meta["air.file"] = str(air_file)
             meta["air.tas_is_eas"] = True
-            air = AirDataStream(t=t, tas=finite_rows(next(iter(v.values()))))
+            air = AirDataStream(t=t, tas=rep.rows("air", next(iter(v.values())), AIRSPEED_RANGE))
         if "reference" in tables:
             t, v = sec("reference")
             q, n_bad = invalid_quat_rows(_stack(v, _ALFA_QUAT))
@@ -422,7 +453,7 @@ def read_alfa(
             ref_wind = WindStream(t=t, wind_n=vec_enu_to_ned(w_enu))
         return Flight(
             imu=imu, mag=mag, gnss=gnss, air=air, reference=reference, ref_wind=ref_wind,
-            meta=meta,
+            meta=meta, repairs=rep.counts,
         )
 
 
@@ -567,10 +598,11 @@ def read_csv_dir(dirpath: str | os.PathLike[str]) -> Flight:
     streams: dict[str, Any] = {}
     with flight_errors_name(mpath):
         site = _site(man)
+        rep = RepairLog()
         for name, (table, scale) in tables.items():
-            t, vals = _seconds(table, scale, origin, name, meta)
-            streams[name] = _STREAMS[name][1](man, t, vals, meta)
-        return Flight(**streams, site=site, meta=meta)
+            t, vals = _seconds(table, scale, origin, name, meta, rep)
+            streams[name] = _STREAMS[name][1](man, t, vals, meta, rep)
+        return Flight(**streams, site=site, meta=meta, repairs=rep.counts)
 
 
 def _site(man: _Manifest) -> Site:
@@ -603,15 +635,15 @@ def _imu_cols(man: _Manifest) -> list[str]:
     return man.names("imu", "gyro", 3) + man.names("imu", "accel", 3)
 
 
-def _csv_imu(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> ImuStream:
+def _csv_imu(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog) -> ImuStream:
     body, _ = _body_nav(_frame(man, "imu"))
     cols = _imu_cols(man)
     kw = GYRO_UNITS[man.choice("imu", "gyro_unit", GYRO_UNITS)]
     ka = ACCEL_UNITS[man.choice("imu", "accel_unit", ACCEL_UNITS)]
     mount = _mount(man, "imu", meta)
-    w = mount(body(finite_rows(_stack(v, cols[:3])) * kw))
-    f = mount(body(finite_rows(_stack(v, cols[3:])) * ka))
-    return ImuStream(t=t, w_b=w, f_b=f)
+    w = mount(body(_stack(v, cols[:3]) * kw))
+    f = mount(body(_stack(v, cols[3:]) * ka))
+    return ImuStream(t=t, w_b=rep.rows("imu", w, GYRO_RANGE), f_b=rep.rows("imu", f, ACCEL_RANGE))
 
 
 def _mount(man: _Manifest, sec: str, meta: dict[str, Any]) -> Callable[[F64], F64]:
@@ -632,13 +664,13 @@ def _mag_cols(man: _Manifest) -> list[str]:
     return man.names("mag", "columns", 3)
 
 
-def _csv_mag(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> MagStream:
+def _csv_mag(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog) -> MagStream:
     body, _ = _body_nav(_frame(man, "mag"))
     unit = man.choice("mag", "unit", _MAG)
     mount = _mount(man, "mag", meta)
     m = mag_to_tesla(finite_rows(_stack(v, _mag_cols(man))), unit,
                      site_mag_n=_site(man).mag_n, name="mag.unit", meta=meta)
-    return MagStream(t=t, mag_b=mount(body(m)))
+    return MagStream(t=t, mag_b=rep.rows("mag", mount(body(m)), MAG_RANGE))
 
 
 def _gnss_cols(man: _Manifest) -> list[str]:
@@ -647,14 +679,14 @@ def _gnss_cols(man: _Manifest) -> list[str]:
     return man.names("gnss", "velocity" if man.has("gnss", "velocity") else "position", 3)
 
 
-def _csv_gnss(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> GnssStream:
+def _csv_gnss(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog) -> GnssStream:
     cols = _gnss_cols(man)
     if man.has("gnss", "velocity"):
         _, nav = _body_nav(_frame(man, "gnss"))
         k = SPEED_UNITS[man.choice("gnss", "unit", SPEED_UNITS, "m/s")]
-        return GnssStream(t=t, v_n=nav(finite_rows(_stack(v, cols)) * k))
+        return GnssStream(t=t, v_n=rep.rows("gnss", nav(_stack(v, cols) * k), GNSS_VELOCITY_RANGE))
     meta["gnss.derived_from"] = "position"
-    return GnssStream(t=t, v_n=_velocity_from_positions(t, _stack(v, cols)))
+    return GnssStream(t=t, v_n=rep.rows("gnss", _velocity_from_positions(t, _stack(v, cols)), GNSS_VELOCITY_RANGE))
 
 
 def _velocity_from_positions(t: F64, lla: F64) -> F64:
@@ -690,16 +722,16 @@ def _air_cols(man: _Manifest) -> list[str]:
     return cols + [man.text("air", k) for k in ("aoa", "sideslip") if man.has("air", k)]
 
 
-def _csv_air(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> AirDataStream:
+def _csv_air(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog) -> AirDataStream:
     cols = _air_cols(man)
     k = SPEED_UNITS[man.choice("air", "unit", SPEED_UNITS, "m/s")]
-    tas = finite_rows(v[cols[0]]) * k
+    tas = rep.rows("air", v[cols[0]] * k, AIRSPEED_RANGE)
     if len(cols) == 1:
         return AirDataStream(t=t, tas=tas)
     ka = _ANGLE[man.choice("air", "angle_unit", _ANGLE, "rad")]
     # One vane alone: the stream stores the other angle as NaN (samples without vanes).
     vanes = {
-        name: finite_rows(v[man.text("air", name)]) * ka if man.has("air", name) else None
+        name: rep.rows("air", v[man.text("air", name)] * ka, ANGLE_RANGE) if man.has("air", name) else None
         for name in ("aoa", "sideslip")
     }
     return AirDataStream(t=t, tas=tas, **vanes)
@@ -715,7 +747,7 @@ def _ref_cols(man: _Manifest) -> list[str]:
 
 
 def _csv_reference(
-    man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]
+    man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog
 ) -> Reference:
     frame = _frame(man, "reference")
     kind = man.choice("reference", "kind", _KINDS, "autopilot")
@@ -748,7 +780,7 @@ def _wind_cols(man: _Manifest) -> list[str]:
     return man.names("ref_wind", "columns", 3)
 
 
-def _csv_wind(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any]) -> WindStream:
+def _csv_wind(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog) -> WindStream:
     _, nav = _body_nav(_frame(man, "ref_wind"))
     k = SPEED_UNITS[man.choice("ref_wind", "unit", SPEED_UNITS, "m/s")]
     sign = -1.0 if man.choice("ref_wind", "convention", ("to", "from"), "to") == "from" else 1.0

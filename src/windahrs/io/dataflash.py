@@ -51,12 +51,20 @@ from windahrs.flight import (
 from windahrs.io.edge import (
     LogFormatError,
     captured_output,
-    clean_series,
-    finite_rows,
     flight_errors_name,
     guard,
     invalid_quat_rows,
     param_float,
+    warn_truncated,
+)
+from windahrs.repair import (
+    ACCEL_RANGE,
+    AIRSPEED_RANGE,
+    GNSS_VELOCITY_RANGE,
+    GYRO_RANGE,
+    MAG_RANGE,
+    RepairLog,
+    finite_rows,
 )
 from windahrs.rotation import quat_from_euler
 
@@ -99,6 +107,10 @@ def read_dataflash(
     instance (``I`` field) to read. core: which EKF core (``C`` field) gives the reference
     attitude and wind.
 
+    A binary log cut inside its last message is read up to the message before, with a
+    TruncatedLogWarning and ``meta["dataflash.truncated_bytes"]``; the samples are repaired
+    as :mod:`windahrs.repair` says (``Flight.repairs``).
+
     Raises LogFormatError (missing, empty, not DataFlash, no IMU messages) and FlightError
     (values failing validation; field prefixed by the file).
     """
@@ -109,6 +121,7 @@ def read_dataflash(
             rows, params, bad_time = guard(
                 p, "unreadable DataFlash contents", lambda: _collect(log, instance, core)
             )
+            cut = _truncated_bytes(log)
         finally:
             with contextlib.suppress(Exception):
                 log.close()
@@ -127,20 +140,43 @@ def read_dataflash(
     }
     if bad_time:
         meta["dataflash.dropped_bad_time"] = bad_time
+    if cut:
+        meta["dataflash.truncated_bytes"] = cut
+        warn_truncated(p, f"its last message is incomplete: read up to byte {p.stat().st_size - cut}, "
+                       f"{cut} bytes dropped")
     meta.update(params)
 
+    rep = RepairLog()
     with flight_errors_name(p):
-        t, a = _series("imu", rows["IMU"], t0, meta)
-        imu = ImuStream(t=t, w_b=finite_rows(a[:, 0:3]), f_b=finite_rows(a[:, 3:6]))
+        t, a = _series("imu", rows["IMU"], t0, rep)
+        imu = ImuStream(t=t, w_b=rep.rows("imu", a[:, 0:3], GYRO_RANGE), f_b=rep.rows("imu", a[:, 3:6], ACCEL_RANGE))
         return Flight(
             imu=imu,
-            mag=_mag(rows, t0, meta),
-            gnss=_gnss(rows, t0, meta),
-            air=_air(rows, t0, meta),
-            reference=_reference(rows, t0, meta),
-            ref_wind=_wind(rows, t0, meta),
+            mag=_mag(rows, t0, rep),
+            gnss=_gnss(rows, t0, meta, rep),
+            air=_air(rows, t0, meta, rep),
+            reference=_reference(rows, t0, meta, rep),
+            ref_wind=_wind(rows, t0, meta, rep),
             meta=meta,
+            repairs=rep.counts,
         )
+
+
+def _truncated_bytes(log: Any) -> int:
+    """Bytes of an incomplete last message of a binary log (0 when it ends on a whole one).
+
+    pymavlink's index holds the offset of every message header it met, the last one
+    included even when the file ends inside it; its format gives its length."""
+    offsets = getattr(log, "offsets", None)
+    data_len = getattr(log, "data_len", None)
+    if not isinstance(offsets, list) or not isinstance(data_len, int):
+        return 0  # a text log: no byte offsets
+    last = max(((o[-1], mtype) for mtype, o in enumerate(offsets) if o), default=None)
+    if last is None or last[1] not in log.formats:
+        return 0
+    ofs, mtype = last
+    end = ofs + int(log.formats[mtype].len)
+    return data_len - ofs if end > data_len else 0
 
 
 def _open(p: Path) -> Any:
@@ -210,52 +246,49 @@ def _num(v: Any) -> float:
 
 
 def _series(
-    name: str, rows: list[tuple[int, tuple[float, ...]]], t0: int, meta: dict[str, Any]
+    name: str, rows: list[tuple[int, tuple[float, ...]]], t0: int, rep: RepairLog
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Time (s from t0) and values (N, k) of one message type, sorted, duplicates dropped."""
+    """Time (s from t0) and values (N, k) of one message type, sorted, duplicates dropped
+    (counted on ``name``)."""
     t_us = np.array([r[0] for r in rows], dtype=np.int64)
     vals = np.array([r[1] for r in rows], dtype=np.float64)
-    t_us, (vals,), n_reordered, n_dup = clean_series(t_us, vals)
-    if n_reordered:
-        meta[f"{name}.reordered"] = n_reordered
-    if n_dup:
-        meta[f"{name}.dropped_duplicates"] = n_dup
+    t_us, (vals,) = rep.series(name, t_us, vals)
     return (t_us - t0).astype(np.float64) * _US, vals
 
 
-def _mag(rows: _Rows, t0: int, meta: dict[str, Any]) -> MagStream | None:
+def _mag(rows: _Rows, t0: int, rep: RepairLog) -> MagStream | None:
     if "MAG" not in rows:
         return None
-    t, a = _series("mag", rows["MAG"], t0, meta)
-    return MagStream(t=t, mag_b=finite_rows(a) * _MILLIGAUSS)
+    t, a = _series("mag", rows["MAG"], t0, rep)
+    return MagStream(t=t, mag_b=rep.rows("mag", a * _MILLIGAUSS, MAG_RANGE))
 
 
-def _gnss(rows: _Rows, t0: int, meta: dict[str, Any]) -> GnssStream | None:
+def _gnss(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> GnssStream | None:
     if "GPS" not in rows:
         return None
-    t, a = _series("gnss", rows["GPS"], t0, meta)
+    t, a = _series("gnss", rows["GPS"], t0, rep)
     ok = a[:, 0] >= _GPS_3D_FIX
     meta["gnss.dropped_no_3d_fix"] = int(np.count_nonzero(~ok))
     if not ok.any():
         return None
     spd, crs, vz = a[ok, 1], a[ok, 2] * DEG, a[ok, 3]
     v_n = np.column_stack([spd * np.cos(crs), spd * np.sin(crs), vz])
-    return GnssStream(t=t[ok], v_n=finite_rows(v_n))
+    return GnssStream(t=t[ok], v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE))
 
 
-def _air(rows: _Rows, t0: int, meta: dict[str, Any]) -> AirDataStream | None:
+def _air(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> AirDataStream | None:
     if "ARSP" not in rows:
         return None
-    t, a = _series("air", rows["ARSP"], t0, meta)
+    t, a = _series("air", rows["ARSP"], t0, rep)
     meta["air.tas_is_eas"] = True
-    return AirDataStream(t=t, tas=finite_rows(a)[:, 0])
+    return AirDataStream(t=t, tas=rep.rows("air", a[:, 0], AIRSPEED_RANGE))
 
 
-def _reference(rows: _Rows, t0: int, meta: dict[str, Any]) -> Reference | None:
+def _reference(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> Reference | None:
     for name in ("XKQ", "XKQ1", "NKQ1", "ATT", "AHR2"):
         if name not in rows:
             continue
-        t, a = _series("reference", rows[name], t0, meta)
+        t, a = _series("reference", rows[name], t0, rep)
         if name in ("ATT", "AHR2"):
             q = quat_from_euler(a * DEG)
         else:
@@ -268,11 +301,11 @@ def _reference(rows: _Rows, t0: int, meta: dict[str, Any]) -> Reference | None:
     return None
 
 
-def _wind(rows: _Rows, t0: int, meta: dict[str, Any]) -> WindStream | None:
+def _wind(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> WindStream | None:
     for name in ("XKF2", "NKF2"):
         if name not in rows:
             continue
-        t, a = _series("ref_wind", rows[name], t0, meta)
+        t, a = _series("ref_wind", rows[name], t0, rep)
         meta["ref_wind.message"] = name
         wind = np.column_stack([a[:, 0], a[:, 1], np.zeros(len(t))])
         return WindStream(t=t, wind_n=finite_rows(wind))

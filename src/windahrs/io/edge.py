@@ -7,16 +7,19 @@ missing topic, bad manifest entry); malformed *values* that reach the Flight rai
 :class:`~windahrs.flight.FlightError` with the file prefixed to the field. Both name
 the file.
 
-The helpers below hold the one policy every reader applies at the edge, so that nothing
-is dropped silently:
+The repair of the samples themselves (time stamps out of order, repeated or not finite,
+infinite values, samples beyond the sensor's range) is :mod:`windahrs.repair`, shared with
+``Flight.from_arrays``: each reader fills a :class:`~windahrs.repair.RepairLog` and gives its
+counts to ``Flight.repairs``. The helpers below hold the rest of the policy every reader
+applies at the edge, so that nothing is dropped silently:
 
-* time stamps out of order (appended data, multiplexed recorders) are sorted, and
-  repeated stamps keep the first sample; both are counted in ``meta``;
-* non-finite sensor values (inf, NaN) become NaN rows, the Flight's "missing sample";
 * reference quaternions whose norm is not 1 (an estimator not yet initialised logs
   zeros) become NaN rows, i.e. gaps that are not scored, and are counted;
 * what a third-party parser prints about corrupt bytes is captured and counted
-  (``meta["<format>.parser_messages"]``), not shown.
+  (``meta["<format>.parser_messages"]``), not shown;
+* a truncated file (its last message or row incomplete) is read up to its last complete
+  one, with a :class:`TruncatedLogWarning` saying how much was dropped, and the count in
+  ``meta["<format>.truncated_bytes"]`` (CSV: ``meta["<stream>.dropped_truncated_row"]``).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import io
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from typing import Any, TypeVar
@@ -37,14 +41,14 @@ from windahrs.flight import FlightError
 __all__ = [
     "LogFormatError",
     "ParserOutput",
+    "TruncatedLogWarning",
     "captured_output",
-    "clean_series",
-    "finite_rows",
     "flight_errors_name",
     "guard",
     "invalid_quat_rows",
     "param_float",
     "velocity_from_positions",
+    "warn_truncated",
 ]
 
 F64 = NDArray[np.float64]
@@ -66,40 +70,14 @@ class LogFormatError(ValueError):
         super().__init__(f"{self.path}: {problem}")
 
 
-def clean_series(
-    t: NDArray[Any], *values: NDArray[Any]
-) -> tuple[NDArray[Any], list[NDArray[Any]], int, int]:
-    """Sort a time series and drop repeated time stamps, keeping the first sample.
-
-    t: (N,) time stamps in any unit (integers keep their precision). values: arrays whose
-    first axis is N. Returns ``(t, values, n_reordered, n_duplicates)``: the cleaned
-    series, how many samples were out of order (0 when already sorted) and how many
-    repeated stamps were dropped. The sort is stable, so "first" means first in the file.
-    """
-    t = np.asarray(t)
-    vals = [np.asarray(v) for v in values]
-    n_reordered = 0
-    if t.size > 1 and (np.diff(t) < 0).any():
-        order = np.argsort(t, kind="stable")
-        n_reordered = int(np.count_nonzero(order != np.arange(t.size)))
-        t = t[order]
-        vals = [v[order] for v in vals]
-    keep = np.ones(t.size, dtype=bool)
-    if t.size > 1:
-        keep[1:] = np.diff(t) != 0
-    n_dup = int(t.size - np.count_nonzero(keep))
-    if n_dup:
-        t = t[keep]
-        vals = [v[keep] for v in vals]
-    return t, vals, n_reordered, n_dup
+class TruncatedLogWarning(UserWarning):
+    """A log ends inside a message or row (a recording cut by a power loss or a copy): it
+    was read up to its last complete one. The message names the file and what was dropped."""
 
 
-def finite_rows(a: NDArray[Any]) -> F64:
-    """Float copy of ``a`` with every row holding a non-finite value set to NaN (missing)."""
-    out = np.array(a, dtype=np.float64)
-    bad = ~np.isfinite(out).all(axis=1) if out.ndim == 2 else ~np.isfinite(out)
-    out[bad] = np.nan
-    return out
+def warn_truncated(path: str | os.PathLike[str], what: str) -> None:
+    """Emit a :class:`TruncatedLogWarning` for ``path``: ``what`` says what was dropped."""
+    warnings.warn(f"{os.fspath(path)}: truncated: {what}", TruncatedLogWarning, stacklevel=3)
 
 
 def invalid_quat_rows(q: NDArray[Any]) -> tuple[F64, int]:

@@ -48,12 +48,22 @@ from windahrs.flight import (
 from windahrs.io.edge import (
     LogFormatError,
     captured_output,
-    clean_series,
-    finite_rows,
     flight_errors_name,
     guard,
     invalid_quat_rows,
     param_float,
+    warn_truncated,
+)
+from windahrs.repair import (
+    ACCEL_RANGE,
+    AIRSPEED_RANGE,
+    ANGLE_RANGE,
+    GNSS_VELOCITY_RANGE,
+    GYRO_RANGE,
+    MAG_RANGE,
+    RepairLog,
+    clean_series,
+    finite_rows,
 )
 
 __all__ = ["ULOG_TOPICS", "read_ulog"]
@@ -80,6 +90,8 @@ _GAUSS = 1e-4  # tesla per gauss
 _US = 1e-6
 #: Reads without progress after which a ULog parse is stopped (see _ProgressFile).
 _IDLE_READS = 300_000
+#: Bytes of a ULog message header (uint16 size, uint8 type).
+_HEADER = 3
 
 
 class _MissingField(KeyError):
@@ -113,6 +125,10 @@ def read_ulog(
     ``"airspeed"`` (by default the validated one, which PX4 logs at a lower rate on some
     versions).
 
+    A file cut inside its last message is read up to the message before, with a
+    TruncatedLogWarning and ``meta["ulog.truncated_bytes"]``; the samples are repaired as
+    :mod:`windahrs.repair` says (``Flight.repairs``).
+
     Raises LogFormatError (file missing, not a ULog, truncated before the IMU data, no
     ``sensor_combined``) and FlightError (values failing validation; field prefixed by
     the file).
@@ -133,6 +149,7 @@ def read_ulog(
             lambda: ULog(fh, list(ULOG_TOPICS)),
         )
     topics = _Topics(ulog, multi_id)
+    cut = progress_file.truncated_bytes()
     t0 = int(ulog.start_timestamp)
     meta: dict[str, Any] = {
         "source": p.name,
@@ -156,6 +173,10 @@ def read_ulog(
                 bad_params += 1
     if bad_params:
         meta["ulog.unreadable_parameters"] = bad_params
+    if cut:
+        meta["ulog.truncated_bytes"] = cut
+        warn_truncated(p, f"its last message is incomplete: read up to byte {p.stat().st_size - cut}, "
+                       f"{cut} bytes dropped")
 
     sc = topics.get("sensor_combined")
     if sc is None or len(sc.get("timestamp", ())) == 0:
@@ -163,17 +184,19 @@ def read_ulog(
         raise LogFormatError(p, f"no 'sensor_combined' topic (the IMU data a Flight needs){hint}")
     meta["imu.topic"] = topics.used["sensor_combined"]
 
+    rep = RepairLog()
     try:
         with flight_errors_name(p):
-            imu = _imu(sc, t0, meta)
+            imu = _imu(sc, t0, meta, rep)
             flight = Flight(
                 imu=imu,
-                mag=_mag(topics, sc, t0, meta),
-                gnss=_gnss(topics, t0, meta),
-                air=_air(topics, t0, meta, air_topic),
-                reference=_reference(topics, t0, meta),
-                ref_wind=_wind(topics, t0, meta),
+                mag=_mag(topics, sc, t0, meta, rep),
+                gnss=_gnss(topics, t0, meta, rep),
+                air=_air(topics, t0, meta, rep, air_topic),
+                reference=_reference(topics, t0, meta, rep),
+                ref_wind=_wind(topics, t0, meta, rep),
                 meta=meta,
+                repairs=rep.counts,
             )
     except _MissingField as exc:
         raise LogFormatError(
@@ -202,9 +225,11 @@ class _ProgressFile:
         self._pos = 0
         self._furthest = 0
         self._idle = 0
+        self._tail = ((0, 0), (0, 0))  # (asked, got) of the last two reads
 
     def read(self, size: int = -1) -> bytes:
         data = self._fh.read(size)
+        self._tail = (self._tail[1], (size, len(data)))
         self._pos += len(data)
         if self._pos > self._furthest:
             self._furthest, self._idle = self._pos, 0
@@ -220,6 +245,20 @@ class _ProgressFile:
     def seek(self, offset: int, whence: int = 0) -> int:
         self._pos = self._fh.seek(offset, whence)
         return self._pos
+
+    def truncated_bytes(self) -> int:
+        """Bytes of an incomplete last message, once pyulog has stopped (0 when the file
+        ends on a whole message). pyulog reads each message as its 3-byte header, then its
+        payload, and stops at the first read that comes back short: a short header read
+        leaves the bytes it got, a short payload read those and the header."""
+        (asked0, got0), (asked1, got1) = self._tail
+        if asked1 <= 0 or got1 >= asked1:
+            return 0
+        if asked1 == _HEADER and got1 == 0:
+            return 0  # the end, between messages
+        if asked0 == _HEADER and got0 == _HEADER:
+            return _HEADER + got1  # inside the payload
+        return got1  # inside the header
 
     def tell(self) -> int:
         return self._pos
@@ -267,63 +306,58 @@ def _stamps(d: Data) -> NDArray[np.int64]:
 
 
 def _clean(
-    name: str, t_us: NDArray[np.int64], t0: int, meta: dict[str, Any], *values: NDArray[Any]
+    name: str, t_us: NDArray[np.int64], t0: int, rep: RepairLog, *values: NDArray[Any]
 ) -> tuple[NDArray[np.float64], list[NDArray[Any]]]:
-    t, vals, n_reordered, n_dup = clean_series(t_us, *values)
-    if n_reordered:
-        meta[f"{name}.reordered"] = n_reordered
-    if n_dup:
-        meta[f"{name}.dropped_duplicates"] = n_dup
+    t, vals = rep.series(name, t_us, *values)
     return (t - t0).astype(np.float64) * _US, vals
 
 
-def _imu(sc: Data, t0: int, meta: dict[str, Any]) -> ImuStream:
-    w = finite_rows(_vec(sc, "gyro_rad"))
-    f = finite_rows(_vec(sc, "accelerometer_m_s2"))
+def _imu(sc: Data, t0: int, meta: dict[str, Any], rep: RepairLog) -> ImuStream:
+    w = _vec(sc, "gyro_rad")
+    f = _vec(sc, "accelerometer_m_s2")
     if "accelerometer_timestamp_relative" in sc:
         # One time vector for gyro and accel: the accelerometer's own offset (0 on the
         # logs seen) is recorded so a user can judge the approximation.
         rel = np.asarray(sc["accelerometer_timestamp_relative"]).astype(np.int64)
         rel = rel[rel != _REL_INVALID]
         meta["imu.accel_offset_max_s"] = float(np.abs(rel).max() * _US) if rel.size else 0.0
-    t, (w, f) = _clean("imu", _stamps(sc), t0, meta, w, f)
-    return ImuStream(t=t, w_b=w, f_b=f)
+    t, (w, f) = _clean("imu", _stamps(sc), t0, rep, w, f)
+    return ImuStream(t=t, w_b=rep.rows("imu", w, GYRO_RANGE), f_b=rep.rows("imu", f, ACCEL_RANGE))
 
 
-def _mag(topics: _Topics, sc: Data, t0: int, meta: dict[str, Any]) -> MagStream | None:
+def _mag(topics: _Topics, sc: Data, t0: int, meta: dict[str, Any], rep: RepairLog) -> MagStream | None:
     vm = topics.get("vehicle_magnetometer")
     if vm is not None and len(vm["timestamp"]):
         meta["mag.topic"] = topics.used["vehicle_magnetometer"]
-        m = finite_rows(_vec(vm, "magnetometer_ga")) * _GAUSS
-        t, (m,) = _clean("mag", _stamps(vm), t0, meta, m)
-        return MagStream(t=t, mag_b=m)
+        m = _vec(vm, "magnetometer_ga") * _GAUSS
+        t, (m,) = _clean("mag", _stamps(vm), t0, rep, m)
+        return MagStream(t=t, mag_b=rep.rows("mag", m, MAG_RANGE))
     if "magnetometer_ga[0]" not in sc:
         return None
     # Old layout: the magnetometer rides in sensor_combined, held between its own samples;
     # its sample time is timestamp + magnetometer_timestamp_relative, and a repeated time
     # is the same sample published again (expected, so counted apart from duplicates).
     t_us = np.asarray(sc["timestamp"]).astype(np.int64)
-    m = finite_rows(_vec(sc, "magnetometer_ga")) * _GAUSS
+    m = _vec(sc, "magnetometer_ga") * _GAUSS
     if "magnetometer_timestamp_relative" in sc:
         rel = np.asarray(sc["magnetometer_timestamp_relative"]).astype(np.int64)
         ok = rel != _REL_INVALID
         t_us, m = t_us[ok] + rel[ok], m[ok]
-    t_us, (m,), n_reordered, n_held = clean_series(t_us, m)
+    t_us, (m,), counts = clean_series(t_us, m)
     meta["mag.topic"] = "sensor_combined.magnetometer_ga"
-    meta["mag.held_repeats"] = n_held
-    if n_reordered:
-        meta["mag.reordered"] = n_reordered
+    meta["mag.held_repeats"] = counts["duplicates"]
+    rep.add("mag", "reordered", counts["reordered"])
     if t_us.size == 0:
         return None
-    return MagStream(t=(t_us - t0).astype(np.float64) * _US, mag_b=m)
+    return MagStream(t=(t_us - t0).astype(np.float64) * _US, mag_b=rep.rows("mag", m, MAG_RANGE))
 
 
-def _gnss(topics: _Topics, t0: int, meta: dict[str, Any]) -> GnssStream | None:
+def _gnss(topics: _Topics, t0: int, meta: dict[str, Any], rep: RepairLog) -> GnssStream | None:
     for name in ("vehicle_gps_position", "sensor_gps"):
         d = topics.get(name)
         if d is None or len(d["timestamp"]) == 0:
             continue
-        v = finite_rows(np.column_stack([d[f"vel_{c}_m_s"] for c in "ned"]))
+        v = np.column_stack([d[f"vel_{c}_m_s"] for c in "ned"]).astype(np.float64)
         t_us = _stamps(d)
         if "vel_ned_valid" in d:
             ok = np.asarray(d["vel_ned_valid"]) != 0
@@ -332,13 +366,13 @@ def _gnss(topics: _Topics, t0: int, meta: dict[str, Any]) -> GnssStream | None:
         if t_us.size == 0:
             continue
         meta["gnss.topic"] = topics.used[name]
-        t, (v,) = _clean("gnss", t_us, t0, meta, v)
-        return GnssStream(t=t, v_n=v)
+        t, (v,) = _clean("gnss", t_us, t0, rep, v)
+        return GnssStream(t=t, v_n=rep.rows("gnss", v, GNSS_VELOCITY_RANGE))
     return None
 
 
 def _air(
-    topics: _Topics, t0: int, meta: dict[str, Any], air_topic: str | None
+    topics: _Topics, t0: int, meta: dict[str, Any], rep: RepairLog, air_topic: str | None
 ) -> AirDataStream | None:
     names = (air_topic,) if air_topic else ("airspeed_validated", "airspeed")
     for name in names:
@@ -347,15 +381,14 @@ def _air(
             continue
         meta["air.topic"] = topics.used[name]
         tas = np.asarray(d["true_airspeed_m_s"], dtype=np.float64)
-        tas = np.where(np.isfinite(tas), tas, np.nan)
-        t, (tas,) = _clean("air", _stamps(d), t0, meta, tas)
-        aoa, slip = _vanes(topics, t, t0, meta)
-        return AirDataStream(t=t, tas=tas, aoa=aoa, sideslip=slip)
+        t, (tas,) = _clean("air", _stamps(d), t0, rep, tas)
+        aoa, slip = _vanes(topics, t, t0, meta, rep)
+        return AirDataStream(t=t, tas=rep.rows("air", tas, AIRSPEED_RANGE), aoa=aoa, sideslip=slip)
     return None
 
 
 def _vanes(
-    topics: _Topics, t: NDArray[np.float64], t0: int, meta: dict[str, Any]
+    topics: _Topics, t: NDArray[np.float64], t0: int, meta: dict[str, Any], rep: RepairLog
 ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
     """Angle of attack and sideslip (rad) on the airspeed's time grid, or (None, None).
 
@@ -373,22 +406,23 @@ def _vanes(
         a = np.asarray(d[key], dtype=np.float64)
         if "valid" in d:
             a = np.where(np.asarray(d["valid"]) != 0, a, np.nan)
-        tv, (a,), _, _ = clean_series(_stamps(d), a)
+        tv, (a,), _ = clean_series(_stamps(d), a)
+        a = rep.rows("air", a, ANGLE_RANGE)
         out.append(np.interp(t, (tv - t0) * _US, a, left=np.nan, right=np.nan))
     meta["air.vanes"] = "airflow_aoa/airflow_slip interpolated onto airspeed times"
     return out[0], out[1]
 
 
-def _wind(topics: _Topics, t0: int, meta: dict[str, Any]) -> WindStream | None:
+def _wind(topics: _Topics, t0: int, meta: dict[str, Any], rep: RepairLog) -> WindStream | None:
     for name in ("wind", "wind_estimate"):
         d = topics.get(name)
         if d is None or len(d["timestamp"]) == 0:
             continue
         n = np.asarray(d["windspeed_north"], dtype=np.float64)
-        w = finite_rows(np.column_stack([n, d["windspeed_east"], np.zeros_like(n)]))
+        w = np.column_stack([n, d["windspeed_east"], np.zeros_like(n)])
         meta["ref_wind.topic"] = topics.used[name]
-        t, (w,) = _clean("ref_wind", _stamps(d), t0, meta, w)
-        return WindStream(t=t, wind_n=w)
+        t, (w,) = _clean("ref_wind", _stamps(d), t0, rep, w)
+        return WindStream(t=t, wind_n=finite_rows(w))
     return None
 
 
@@ -398,7 +432,7 @@ _REFERENCE_TOPICS: tuple[tuple[str, ReferenceKind], ...] = (
 )
 
 
-def _reference(topics: _Topics, t0: int, meta: dict[str, Any]) -> Reference | None:
+def _reference(topics: _Topics, t0: int, meta: dict[str, Any], rep: RepairLog) -> Reference | None:
     for name, kind in _REFERENCE_TOPICS:
         d = topics.get(name)
         if d is None or len(d["timestamp"]) == 0:
@@ -407,6 +441,6 @@ def _reference(topics: _Topics, t0: int, meta: dict[str, Any]) -> Reference | No
         meta["reference.topic"] = topics.used[name]
         if n_bad:
             meta["reference.invalid_quaternions"] = n_bad
-        t, (q,) = _clean("reference", _stamps(d), t0, meta, q)
+        t, (q,) = _clean("reference", _stamps(d), t0, rep, q)
         return Reference(t=t, q_nb=q, kind=kind)
     return None

@@ -280,6 +280,29 @@ def grouped_bars_png(
 # helpers
 
 
+def spans_png(
+    rows: Mapping[str, Sequence[tuple[float, float, str]]], t_range: tuple[float, float], title: str
+) -> bytes:
+    """Time spans in stacked panels, one per label of ``rows`` (e.g. an estimator), each span
+    (t0 s, t1 s, name) a bar on its name's line (a span of one instant drawn as a thin bar);
+    t_range the time axis. Returns PNG bytes."""
+    if not rows:
+        raise ValueError("rows: expected at least one labelled list of spans, found none")
+    fig, axes = _new_figure(len(rows))
+    width = max((t_range[1] - t_range[0]) / 500.0, 1e-6)  # an instant, visible
+    for ax, (label, spans) in zip(axes, rows.items(), strict=True):
+        names = sorted({name for _, _, name in spans})
+        for i, name in enumerate(names):
+            bars = [(t0, max(t1 - t0, width)) for t0, t1, n in spans if n == name]
+            ax.broken_barh(bars, (i - 0.35, 0.7), color=f"C{i % 10}")
+        ax.set_yticks(range(len(names)), names, fontsize=7)
+        ax.set_ylim(-0.6, max(len(names), 1) - 0.4)
+        ax.set_xlim(*t_range)
+        ax.set_title(label, loc="left", fontsize=9, pad=2)
+    axes[-1].set_xlabel("time [s]")
+    return _finish(fig, title)
+
+
 def _new_figure(nrows: int) -> tuple[Figure, list[Axes]]:
     try:
         from matplotlib.figure import Figure

@@ -37,9 +37,11 @@ from windahrs.experiments.align import (  # the alignment's text lives beside it
     apply_alignment,
     describe_alignment,
 )
+from windahrs.flags import flag_spans
 from windahrs.flight import Flight
 from windahrs.metrics import Score, attitude_errors, chi2_band, reference_of, score
-from windahrs.report.figures import timeseries_png
+from windahrs.repair import repairs_text
+from windahrs.report.figures import spans_png, timeseries_png
 from windahrs.report.html import Cell, Image, Section, Table, format_cell, render_html
 from windahrs.rotation import euler_from_quat
 
@@ -259,6 +261,9 @@ def _overview(
         warning = alignment_warning(alignment)
         if warning:
             paras.append(f"Warning: {warning}.")
+    repaired = repairs_text(flight.repairs)
+    if repaired:
+        paras.append(f"Input repaired at the edge (windahrs.repair), so each estimator saw it repaired: {repaired}.")
     paras += list(notes)
     rows: list[list[Cell]] = []
     highlight: dict[tuple[int, int], Literal["good", "bad"]] = {}
@@ -460,6 +465,40 @@ def _innovation_section(results: Sequence[tuple[str, Estimate]]) -> Section:
     return Section("Innovations and NIS", paragraphs=paras, tables=[table], images=images)
 
 
+#: The spans listed per estimator in the flags table (the figure shows them all).
+MAX_SPAN_ROWS = 25
+
+
+def _flags_section(flight: Flight, results: Sequence[tuple[str, Estimate]]) -> Section | None:
+    """What each estimator flagged, when and why (``Estimate.flags``, windahrs.flags): a
+    timeline per estimator and the spans with their reasons."""
+    spans = {spec: flag_spans(est.t, est.flags) for spec, est in results if est.flags is not None}
+    spans = {spec: s for spec, s in spans.items() if s}
+    if not spans:
+        return None
+    t = flight.imu.t
+    rows: list[list[Any]] = []
+    for spec, ss in spans.items():
+        for sp in ss[:MAX_SPAN_ROWS]:
+            rows.append([spec, sp.flag, round(sp.t0, 3), round(sp.t1, 3), sp.reason])
+        if len(ss) > MAX_SPAN_ROWS:
+            rows.append([spec, f"... {len(ss) - MAX_SPAN_ROWS} more", None, None, "(in the figure)"])
+    png = spans_png(
+        {spec: [(sp.t0, sp.t1, sp.flag) for sp in ss] for spec, ss in spans.items()},
+        (float(t[0]), float(t[-1])),
+        "Flags",
+    )
+    return Section(
+        "What the estimators flagged",
+        paragraphs=[
+            "Per estimator, the spans of samples where it rejected a sensor, detected a disturbance, held an "
+            "IMU sample, reset its state, fell back to fewer sensors, or went without a sensor (docs/ROBUSTNESS.md)."
+        ],
+        tables=[Table(["estimator", "flag", "from [s]", "to [s]", "reason"], rows, caption="Flagged spans")],
+        images=[Image(png, "Flagged spans per estimator", alt="flag spans against time per estimator")],
+    )
+
+
 def _wind_section(flight: Flight, results: Sequence[tuple[str, Estimate]]) -> Section:
     windy = [(spec, est) for spec, est in results if est.wind_n is not None]
     log_label, log_t, log_w = None, None, None
@@ -580,4 +619,7 @@ def build_log_report(
             _innovation_section(results),
             _wind_section(flight, results),
         ]
+        flagged = _flags_section(flight, results)
+        if flagged is not None:
+            sections.append(flagged)
     return render_html(title or f"windahrs report: {name}", sections)
