@@ -12,11 +12,13 @@ with ``magnitude`` added to one body axis of the gyro (rad/s) or of the accelero
 is run on the same flight. The RMSE is :func:`windahrs.score`'s total attitude error from
 sample 50 (the fault matrix's); the change is faulty minus clean, in % of clean.
 
-A gyro spike that takes ``|w|`` above 50 rad/s is refused by the Flight constructor (its
-unit check, "deg/s?"): such spikes are injected through :func:`~windahrs.sim.faults.inject_raw`
-and an :class:`~windahrs.flight.ImuStream` built without its checks (``object.__new__``),
-so that the estimator sees the sample as a sensor would send it (the ``injected`` field says
-"bypass"; "flight" otherwise). The readers' edge repair (which would turn such a sample into
+Every faulty flight is first built as a checked Flight (:func:`~windahrs.sim.faults.inject_raw`
+then ``RawFlight.to_flight``): the Flight checks units on the bulk of the data
+(:mod:`windahrs.repair`), so one spike of any size passes ("injected": "flight"). Where a
+Flight refuses the streams (before that rule, a gyro sample above 50 rad/s was taken for
+deg/s), the :class:`~windahrs.flight.ImuStream` is built without its checks
+(``object.__new__``, "injected": "bypass"), so that the estimator still sees the sample as a
+sensor would send it. The readers' edge repair (which makes a sample beyond the sensor's range
 NaN before the estimator) is not exercised here.
 
 How the spike was caught: the IMU screen's log (``Estimate.alerts["imu"]``, outcome 1 beyond
@@ -85,7 +87,7 @@ def _screen(held: np.ndarray | None, t: np.ndarray, k: int) -> str:
     rows = np.searchsorted(t, held[:, 0] - 1e-9)
     for row, code in zip(rows, held[:, 3], strict=True):
         if row == k:
-            return OUTCOME[int(code)]
+            return OUTCOME.get(int(code), f"outcome {int(code)}")
     return "next held" if np.any(rows == k + 1) else "not held"
 
 
