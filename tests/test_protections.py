@@ -104,7 +104,7 @@ def test_late_magnetometer_start_without_it_then_turn_to_it() -> None:
     assert est.t[k_init] - est.t[0] == pytest.approx(1.0, abs=0.02)  # core.kernel.MAG_WAIT
     (row,) = est.resets["mag"]
     assert row[0] == flight.mag.t[0] and np.isnan(row[2])
-    assert any("absent at the start" in line for line in est.warnings())
+    assert any("mag taken for the heading (absent at the start" in line for line in est.warnings())
     assert est.flags is not None
     assert all(est.flags[est.t < 9.0] & _bit("mag_absent"))
     assert not any(est.flags[est.t > 10.5] & _bit("mag_absent"))

@@ -84,8 +84,9 @@ class Estimate:
     parameters used; meta: free-form. resets: per sensor (its innovation key), the resets
     of the state to it after its gate had kept it out for the filter's ``reset_timeout``,
     (K, 3) rows of [t s, size (rad for an attitude reset, m/s for a velocity reset), how
-    long the sensor had been kept out s (NaN: it was absent at the start, and the state
-    turned to its first sample)]; :meth:`warnings` says them in words. alerts: what
+    long the sensor had been kept out s (NaN: the heading was unknown, at a start without
+    the magnetometer or after a GNSS reset, and turned to its next sample)];
+    :meth:`warnings` says them in words. alerts: what
     the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
     [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
     the mean specific force (lost gravity); ``"imu"``: (K, 4) rows [t s, change of the
@@ -182,12 +183,12 @@ class Estimate:
                 elif sensor == "gnss":
                     what = f"velocity reset to it by {size:.1f} m/s; attitude levelled, biases and wind restarted"
                     if "mag" in self.innovations:
-                        what += ", magnetometer no longer fused"
+                        what += ", heading turned to the next magnetometer sample"
                 else:
                     what = f"state reset to it by {size:.3g}"
-                if not np.isfinite(out_for):  # a sensor that was absent at the start
-                    out.append(f"{self.filter}: {sensor} absent at the start; at its first sample, "
-                               f"t = {t:.2f} s, {what}")
+                if not np.isfinite(out_for):  # the heading unknown: a start without it, a GNSS reset
+                    out.append(f"{self.filter}: {sensor} taken for the heading (absent at the start, or after "
+                               f"a reset); at t = {t:.2f} s {what}")
                     continue
                 why = "rejected" if sensor == "gnss" else "more than 45 deg off the state"
                 out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")

@@ -21,10 +21,14 @@ reset alone is rejected again 5 s later (measured on the ALFA flight: a reset ev
 * the wind, fitted to a wrong velocity, restarts from the next air sample as at
   initialisation (PX4 EKF2 likewise resets the wind from the airspeed when it restarts
   airspeed fusion);
-* the magnetometer is no longer fused for the rest of the run: PX4 EKF2 declares it faulty
-  (``mag_fault``) after its GNSS-triggered emergency yaw reset, "otherwise its fusion could
-  drag the yaw around and cause another navigation failure". With GNSS velocity and air data
-  the heading stays observable through the vehicle's accelerations (the turns).
+* the heading turns to the next magnetometer sample that passes its disturbance checks
+  (as at a start without it, :mod:`windahrs.aid.mag`): the heading the lost state drifted to
+  is no better than its tilt. PX4 EKF2 instead declares the magnetometer faulty after its
+  GNSS-triggered emergency yaw reset (``mag_fault``), which turns the yaw with its GNSS yaw
+  estimator, which windahrs does not have; declaring it faulty here (until issue 13) left a
+  heading the fault had turned uncorrected for the rest of the flight (one 10 s, 5 m/s GNSS
+  jump on the simulated fixed wing in 8 m/s wind: total RMSE 2.06 deg, 0.68 deg now; ALFA
+  unchanged, its magnetometer's site field unknown).
 
 Logged in the ``reset`` log (size: the velocity jump, m/s) and warned about.
 """
@@ -61,8 +65,8 @@ from windahrs.core.layout import (
     S_AGNSS,
     S_AINS,
     S_FBAR,
+    S_HEADLESS,
     S_INIT,
-    S_MAG_FAULT,
     S_VGNSS,
     S_WPEND,
     W_H,
@@ -174,7 +178,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     """GNSS velocity kept out by its gate for reset_timeout (module docstring): velocity to
     the sample row[:3] m/s NED at t s (spread gnss_sigma), the attitude's spread reopened (a
     tilt beyond 45 deg levelled), the biases restarted, the wind restarted from the next air
-    sample, the magnetometer no longer fused; logged."""
+    sample, the heading turned to the next magnetometer sample; logged."""
     iv = cfg[C_IV]
     reopen(cfg, P, iv, prm[R_GNSS_VAR], prm[R_GNSS_VAR])
     dv2 = 0.0
@@ -191,7 +195,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
         reopen(cfg, P, cfg[C_IBA], prm[R_P0_BA], prm[R_P0_BA])
     if cfg[C_IBM] >= 0:
         reopen(cfg, P, cfg[C_IBM], prm[R_P0_BM], prm[R_P0_BM])
-    flags[S_MAG_FAULT] = 1
+    flags[S_HEADLESS] = 1  # the heading from the next field sample (aid.mag.fuse_mag)
     if cfg[C_IW] >= 0:
         reopen(cfg, P, cfg[C_IW], prm[R_P0_W], prm[R_P0_WV])
         flags[S_WPEND] = 1  # the wind from the next air sample, as at initialisation

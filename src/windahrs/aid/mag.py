@@ -47,7 +47,6 @@ from windahrs.core.layout import (
     R_MAG_VAR,
     R_SITE_MAG,
     S_HEADLESS,
-    S_MAG_FAULT,
     S_MAGN,
     S_MBAR,
     W_H,
@@ -154,10 +153,10 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite) of an initialised filter: row[:3] tesla, body, at t s."""
     mx, my, mz = row[0], row[1], row[2]
     mode = cfg[C_MAG]
-    if mode == MAG_OFF or flags[S_MAG_FAULT] == 1:  # (declared faulty by a GNSS reset, aid.gnss_vel)
+    if mode == MAG_OFF:
         return
     rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
-    if flags[S_HEADLESS] == 1:  # started without it (core.kernel.MAG_WAIT): its heading now
+    if flags[S_HEADLESS] == 1:  # started without it (core.kernel.MAG_WAIT), or reset (aid.gnss_vel): its heading now
         flags[S_HEADLESS] = 0
         if cfg[C_SITE_MAG] == 1:  # (else the reference was just taken from this sample)
             x[X_TOK + INN_MAG] = np.nan  # logged as out for NaN s: absent, not rejected

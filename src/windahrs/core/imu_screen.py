@@ -136,8 +136,8 @@ def _catch_up(cfg, x, flags, dt, w, f):
 def _clipped(cfg, x, P, work, row, dt):
     """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) since the last
     sample are clipped: the true value is beyond it by as much as it again, unknown, and
-    that step's motion becomes spread, as a held sample's would (PX4 EKF2 likewise raises
-    the accelerometer's noise while it clips)."""
+    that step's motion becomes spread, as a held sample's would (PX4 EKF2 likewise sets the
+    delta-velocity noise of a clipping axis to BADACC_BIAS_PNOISE, 4.9 m/s^2)."""
     clip = False
     for a in range(3):
         dw = abs(row[a]) if abs(row[a]) >= CLIP_W and abs(row[a]) == abs(x[X_WLAST + a]) else 0.0

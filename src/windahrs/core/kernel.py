@@ -12,7 +12,8 @@ Nothing is allocated inside the loop.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Literal
+from collections.abc import Sequence
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -197,10 +198,12 @@ from windahrs.core.quat import (
 from windahrs.core.reset import set_attitude_cov
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
+    COV_RECORDS,
     EVENT_AIR,
     EVENT_GNSS,
     EVENT_IMU,
     EVENT_MAG,
+    CovRecord,
     Estimator,
     EventStreamer,
     InitialState,
@@ -446,8 +449,9 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
     covariance (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I)) into row k / e of out_cov
-    (ceil(N / e), d, d) when k is a multiple of e = cfg[C_COV_EVERY]."""
-    d = cfg[C_DIM]
+    (ceil(N / e), d, d) when k is a multiple of e = cfg[C_COV_EVERY]: its leading d x d
+    block for d = out_cov.shape[1], the whole (cfg[C_DIM]), the attitude's (3) or none (0)."""
+    d = out_cov.shape[1]
     iv, iw = cfg[C_IV], cfg[C_IW]
     e = cfg[C_COV_EVERY]
     kc = k // e if k % e == 0 else -1
@@ -496,10 +500,13 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
 
 @njit(**_JIT)
 def _record_tangent_cov(cfg, x, P, work, k, out_cov):
-    """The additive filters' tangent-space covariance into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)."""
+    """The additive filters' tangent-space covariance into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)
+    (the attitude's block alone when out_cov is (N, 3, 3), nothing when (N, 0, 0))."""
+    if out_cov.shape[1] == 0:
+        return
     Xi = work[W_M + 4 : W_M + 8]
     _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
-    n = cfg[C_N]
+    n = cfg[C_N] if out_cov.shape[1] > 3 else 4
     for r in range(3):
         for j in range(4, n):
             v = (
@@ -808,6 +815,28 @@ class CompiledStreamer(EventStreamer):
         )
 
 
+class PreparedRun(NamedTuple):
+    """One flight made ready for :func:`run_events`: the flight, its parameters (the
+    estimator's with what the flight declares), the error-state layout, a fresh
+    KernelState, the merged events (t_ev (E,), kinds (E,), vals (E, 6)) and the outputs it
+    records into: q (N, 4), bg (N, 3), v and w (N, 3), or (0, 3) when not in the layout,
+    cov (ceil(N / e), d, d) at every e-th sample (e = st.cfg[C_COV_EVERY]), d the layout's
+    dimension, 3 (the attitude's block) or 0 (none)."""
+
+    flight: Flight
+    params: EskfParams
+    layout: Layout
+    st: KernelState
+    t_ev: F64
+    kinds: I64
+    vals: F64
+    q: F64
+    bg: F64
+    v: F64
+    w: F64
+    cov: F64
+
+
 class CompiledEstimator(Estimator):
     """An estimator on the compiled core: a process model (``kind``; ``additive`` for the
     quaternion-additive form) and the aid sources its parameters switch on. ``run`` is one
@@ -835,6 +864,43 @@ class CompiledEstimator(Estimator):
         itself declares, :func:`~windahrs.filters.params.flight_params`); the covariance at
         every cov_every-th IMU sample (default: every sample up to
         :data:`~windahrs.core.layout.COV_BUDGET`, :func:`~windahrs.core.layout.cov_stride`)."""
+        run = self.prepare(flight, initial, cov_every=cov_every)
+        run_events(run.st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True)
+        return self.finish(run)
+
+    def run_batch(
+        self,
+        flights: Sequence[Flight],
+        *,
+        initial: Sequence[InitialState | None] | None = None,
+        threads: int | None = None,
+        cov: CovRecord = "full",
+        cov_every: int | None = None,
+    ) -> list[Estimate]:
+        """Estimate several flights in one compiled call, the runs advancing in parallel
+        (:func:`windahrs.core.batch.run_batch`): the same Estimates as ``[self.run(f,
+        initial=i, cov_every=cov_every) for f, i in zip(flights, initial)]``. initial: one
+        InitialState (or None) per flight; threads: how many runs at once (default: numba's
+        thread count, ``NUMBA_NUM_THREADS``); cov: the covariance recorded, "full",
+        "attitude" or "none" (:data:`~windahrs.filters.base.CovRecord`); cov_every: as
+        :meth:`run`'s, per flight."""
+        from windahrs.core.batch import run_batch
+
+        return run_batch(self, flights, initial=initial, threads=threads, cov=cov, cov_every=cov_every)
+
+    def prepare(
+        self,
+        flight: Flight,
+        initial: InitialState | None = None,
+        cov: CovRecord = "full",
+        cov_every: int | None = None,
+    ) -> PreparedRun:
+        """What :func:`run_events` needs to run ``flight``: a fresh state, the merged events
+        and the outputs (uninitialised), in a :class:`PreparedRun`; cov: the covariance to
+        record (:data:`~windahrs.filters.base.CovRecord`), at every cov_every-th IMU sample
+        (as :meth:`run`'s, from the recorded block's size)."""
+        if cov not in COV_RECORDS:
+            raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
         self.check(flight)
         params = flight_params(self.params, flight.meta, self.param_names())
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
@@ -843,28 +909,34 @@ class CompiledEstimator(Estimator):
         caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
         st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
         L = layout_for(self.kind, params, additive=self.additive)
-        N, d = len(flight.imu.t), L.dim
+        N, d = len(flight.imu.t), {"full": L.dim, "attitude": 3, "none": 0}[cov]
         q, bg = np.empty((N, 4)), np.empty((N, 3))
         v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
         w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
         every = cov_stride(N, d, cov_every)
         st.cfg[C_COV_EVERY] = every
-        cov = np.empty((-(-N // every), d, d))
-        run_events(st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, cov, True)
+        P = np.empty((-(-N // every), d, d))
+        return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)
+
+    def finish(self, run: PreparedRun) -> Estimate:
+        """The Estimate of a run that :func:`run_events` has been through (checked:
+        :func:`~windahrs.filters.checks.checked`)."""
+        st, L, flight = run.st, run.layout, run.flight
+        N, d, every = len(flight.imu.t), run.cov.shape[1], int(st.cfg[C_COV_EVERY])
         skipped = st.flags[K_SKIP : K_SKIP + 4]
         return checked(Estimate(
             filter=self.label,
             t=flight.imu.t.copy(),
-            q_nb=q,
-            gyro_bias_b=bg,
-            v_n=v if L.has("v") else None,
-            wind_n=w if L.has("wind") else None,
-            cov=cov,
-            cov_index=None if every == 1 else np.arange(0, N, every),
-            state_labels=L.labels(),
-            innovations=_innovations(st, effective_mag_mode(params, flight.site)),
+            q_nb=run.q,
+            gyro_bias_b=run.bg,
+            v_n=run.v if L.has("v") else None,
+            wind_n=run.w if L.has("wind") else None,
+            cov=run.cov if d else None,
+            cov_index=None if every == 1 or not d else np.arange(0, N, every),
+            state_labels=L.labels()[:d],
+            innovations=_innovations(st, effective_mag_mode(run.params, flight.site)),
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
-            params=repr(params),
+            params=repr(run.params),
             resets=_resets(st),
             alerts=read_held(st.cfg, st.flags, st.inn),
         ), flight)

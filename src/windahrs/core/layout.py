@@ -209,11 +209,11 @@ S_SEQ = 9  # sensors that have logged so far
 S_FBAR = 10  # the low-passed specific force is set (the gravity aid source's, or the INS's)
 S_MBAR = 11  # the low-passed magnetic field is set
 S_WIN = 12  # the initialisation window has a sample
-S_MAG_FAULT = 13  # the magnetometer is no longer fused (declared faulty by a GNSS reset)
+# (13: free)
 S_AINS = 14  # X_AINS is set
 K_SKIP = 15  # (4,) NaN samples skipped: imu, mag, gnss, air
 S_NHELD = 19  # the last IMU sample's held parts (imu_screen): 1 its angular rate, 2 its specific force, 3 both
-S_HEADLESS = 20  # initialised without the magnetometer it has: the heading awaits its first sample
+S_HEADLESS = 20  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
 L_CNT = 21  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS

@@ -51,8 +51,11 @@ TILT_HOLD_S = 3.0
 
 
 def _fill(a: F64) -> F64:
-    """Rows with NaN take the last finite row (the first finite row before any)."""
+    """Rows with NaN take the last finite row (the first finite row before any); ``a``
+    itself when every row is finite (not copied: the callers do not write to it)."""
     ok = np.isfinite(a).all(axis=1)
+    if ok.all():
+        return a
     if not ok.any():
         return np.zeros_like(a)
     idx = np.where(ok, np.arange(len(a)), 0)

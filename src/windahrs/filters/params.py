@@ -19,6 +19,7 @@ TOML layout (any of the tables may be left out)::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import warnings
@@ -141,8 +142,8 @@ class EskfParams:
     filter out for good, and an EKF update cannot turn a filter that is upside down
     (default 5 s, PX4 EKF2_NOAID_TOUT, the longest EKF2 dead-reckons before it resets to
     its aiding; 0: never). GNSS velocity kept out as long resets the INS to it
-    (:mod:`windahrs.aid.gnss_vel`: velocity, attitude spread, biases, wind; the magnetometer
-    is then no longer fused, as PX4 EKF2 declares it faulty after its GNSS emergency reset).
+    (:mod:`windahrs.aid.gnss_vel`: velocity, attitude spread, biases, wind; the heading then
+    turns to the next magnetometer sample).
 
     Held samples. unmeasured_motion_dt s: an IMU step longer than this is taken to hold a
     point sample over motion it did not measure, and adds the noise of that to the
@@ -257,12 +258,18 @@ class EskfParams:
 FLIGHT_PARAMS: dict[str, str] = {"gnss.timing_sigma_s": "gnss_timing_sigma"}
 
 
+@functools.cache
+def _defaults() -> EskfParams:
+    """EskfParams() built and validated once (every run asks which fields are defaults)."""
+    return EskfParams()
+
+
 def flight_params(params: EskfParams, meta: Mapping[str, Any], used: frozenset[str] | None = None) -> EskfParams:
     """``params`` with the fields a flight's ``meta`` declares (:data:`FLIGHT_PARAMS`),
     each where the parameters leave it at its default and (``used``) the estimator uses it;
     a value set explicitly wins. ValueError naming the meta key for a bad value."""
     changes: dict[str, Any] = {}
-    default = EskfParams()
+    default = _defaults()
     for key, name in FLIGHT_PARAMS.items():
         if key not in meta or (used is not None and name not in used):
             continue

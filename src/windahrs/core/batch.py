@@ -1,0 +1,254 @@
+"""Batched runs: several flights through one compiled estimator in one compiled call, the
+runs advancing in parallel on numba's threads (a ``prange`` over the runs around the one
+event loop, :func:`windahrs.core.kernel.run_events`). There is no second copy of any filter
+maths: each run is the single-flight loop on its own state, so a batched run gives the
+Estimate that :meth:`~windahrs.core.kernel.CompiledEstimator.run` gives, bit for bit
+(tests/test_batch.py).
+
+Flights of different lengths are packed end to end, not padded: the events, the outputs,
+the covariances, the innovation logs and the scratch space of all runs sit in one buffer
+each, and run ``r`` works on its own slice, ``[off[r], off[r + 1])``. Each Estimate's
+arrays are views of these buffers: all the Estimates together take the memory of the runs
+done one by one, but one Estimate kept alone keeps its chunk's buffers alive (copy what
+you keep, or keep the results together). The flights go in chunks of about a quarter
+(:func:`chunk_size`): while one chunk's filters run, the Python work of the others (events
+merged and states encoded before, Estimates built and checked after) overlaps them. The
+runs go longest first and are handed to the threads one at a time, so a long flight does
+not leave a thread idle at the end of a chunk.
+
+Threads: ``threads`` runs at once (default: numba's current thread count, which is
+``NUMBA_NUM_THREADS``, by default the number of cores, unless ``numba.set_num_threads``
+changed it); the count is restored after the call. The function releases the GIL. The
+runs share no mutable data (each has its own state, scratch and output slices; the
+events are read only), so the parallel loop is safe. numba's OpenMP and TBB threading
+layers accept calls from several Python threads at once (e.g. a Dask worker with several
+threads); its fallback layer, workqueue, does not (numba aborts the process), so there the
+calls take a lock and run one at a time (as does the first call, which chooses the layer).
+GNU OpenMP is not fork-safe: start worker processes with ``spawn`` (Dask's default) once a
+batch has run in the parent.
+
+The compiled loop is cached beside the sources like the rest of the core (``cache=True``;
+numba caches parallel functions too).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
+from windahrs.core.layout import _JIT, I64, KernelState
+from windahrs.estimate import Estimate
+from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
+from windahrs.flight import Flight
+
+__all__ = ["chunk_size", "run_batch"]
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _run_packed(
+    cfg, prm, x, flags, sup,
+    P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
+    t_ev, kinds, vals, e_off,
+    q, bg, v, w, n_off, cov, c_off, c_rows, dims,
+    order,
+):  # fmt: skip
+    """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
+    cfg, prm, x, flags (R, ...) and sup (R, 2, NMAX): the runs' fixed-size state records;
+    P, work (flat): run r's covariance (p_n[r], p_n[r]) at p_off[r], its scratch (rows,
+    w_cols[r]) at w_off[r]; inn (L, 5), acc (L,): its logs in rows l_off[r]:l_off[r + 1];
+    t_ev, kinds, vals: its events in e_off[r]:e_off[r + 1]; q, bg, v, w: its outputs in
+    rows n_off[r]:n_off[r + 1] (v, w: (0, 3) when not in the layout); cov (flat): its
+    (c_rows[r], dims[r], dims[r]) covariances at c_off[r]."""
+    for i in prange(order.shape[0]):
+        r = order[i]
+        n0, n1, e0, e1 = n_off[r], n_off[r + 1], e_off[r], e_off[r + 1]
+        m, d = p_n[r], dims[r]
+        rows = (w_off[r + 1] - w_off[r]) // w_cols[r]
+        st = KernelState(
+            cfg[r],
+            prm[r],
+            x[r],
+            flags[r],
+            P[p_off[r] : p_off[r] + m * m].reshape((m, m)),
+            work[w_off[r] : w_off[r + 1]].reshape((rows, w_cols[r])),
+            sup[r],
+            inn[l_off[r] : l_off[r + 1]],
+            acc[l_off[r] : l_off[r + 1]],
+        )
+        out_cov = cov[c_off[r] : c_off[r + 1]].reshape((c_rows[r], d, d))
+        run_events(
+            st, t_ev[e0:e1], kinds[e0:e1], vals[e0:e1],
+            q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, True,
+        )  # fmt: skip
+
+
+def _offsets(sizes: Sequence[int]) -> I64:
+    return np.concatenate([[0], np.cumsum(np.asarray(sizes, dtype=np.int64))]).astype(np.int64)
+
+
+def _threads(threads: int | None) -> int:
+    top = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    if threads is None:
+        return int(numba.get_num_threads())
+    if isinstance(threads, bool) or not isinstance(threads, int | np.integer) or not 1 <= threads <= top:
+        raise ValueError(f"threads: expected an integer from 1 to {top} (NUMBA_NUM_THREADS), found {threads!r}")
+    return int(threads)
+
+
+def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun]]:
+    """The runs' arrays packed end to end (the arguments of :func:`_run_packed`, without
+    ``order``), and the runs with their states and outputs replaced by views of them."""
+    sts = [r.st for r in runs]
+    cfg, prm, x, flags, sup = (np.stack([getattr(s, f) for s in sts]) for f in ("cfg", "prm", "x", "flags", "sup"))
+    p_n = np.array([s.P.shape[0] for s in sts], dtype=np.int64)
+    p_off = _offsets([s.P.size for s in sts])
+    P = np.concatenate([s.P.ravel() for s in sts])
+    w_cols = np.array([s.work.shape[1] for s in sts], dtype=np.int64)
+    w_off = _offsets([s.work.size for s in sts])
+    work = np.concatenate([s.work.ravel() for s in sts])
+    l_off = _offsets([len(s.inn) for s in sts])
+    inn = np.concatenate([s.inn for s in sts])
+    acc = np.concatenate([s.acc for s in sts])
+    e_off = _offsets([len(r.t_ev) for r in runs])
+    t_ev = np.concatenate([r.t_ev for r in runs])
+    kinds = np.concatenate([r.kinds for r in runs])
+    vals = np.concatenate([r.vals for r in runs])
+    n_off = _offsets([len(r.q) for r in runs])
+    N = int(n_off[-1])
+    q, bg = np.empty((N, 4)), np.empty((N, 3))
+    v = np.empty((N if len(runs[0].v) else 0, 3))
+    w = np.empty((N if len(runs[0].w) else 0, 3))
+    dims = np.array([r.cov.shape[1] for r in runs], dtype=np.int64)
+    c_rows = np.array([r.cov.shape[0] for r in runs], dtype=np.int64)
+    c_off = _offsets([r.cov.size for r in runs])
+    cov = np.empty(int(c_off[-1]))
+    views = []
+    for i, r in enumerate(runs):
+        n0, n1 = int(n_off[i]), int(n_off[i + 1])
+        l0, l1 = int(l_off[i]), int(l_off[i + 1])
+        st = KernelState(
+            cfg=cfg[i],
+            prm=prm[i],
+            x=x[i],
+            flags=flags[i],
+            P=P[p_off[i] : p_off[i + 1]].reshape(r.st.P.shape),
+            work=work[w_off[i] : w_off[i + 1]].reshape(r.st.work.shape),
+            sup=sup[i],
+            inn=inn[l0:l1],
+            acc=acc[l0:l1],
+        )
+        views.append(r._replace(
+            st=st,
+            q=q[n0:n1],
+            bg=bg[n0:n1],
+            v=v[n0:n1],
+            w=w[n0:n1],
+            cov=cov[c_off[i] : c_off[i + 1]].reshape(r.cov.shape),
+        ))  # fmt: skip
+    args = (cfg, prm, x, flags, sup, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
+            t_ev, kinds, vals, e_off, q, bg, v, w, n_off, cov, c_off, c_rows, dims)  # fmt: skip
+    return args, views
+
+
+def run_batch(
+    est: CompiledEstimator,
+    flights: Sequence[Flight],
+    *,
+    initial: Sequence[InitialState | None] | None = None,
+    threads: int | None = None,
+    cov: CovRecord = "full",
+    cov_every: int | None = None,
+) -> list[Estimate]:
+    """The Estimates of ``est`` on ``flights`` (in their order), the runs advancing together
+    in one compiled call on ``threads`` threads: the same Estimates as ``[est.run(f,
+    initial=i, cov_every=cov_every) for f, i in zip(flights, initial)]``. Flights may
+    differ in length and in sensors. initial: one InitialState or None per flight (default: None for all);
+    threads: runs at once, 1 to NUMBA_NUM_THREADS (default: numba's current count); cov:
+    the covariance recorded, "full" (as ``run``), "attitude" (the 3 x 3 attitude block, with
+    its labels) or "none" (:data:`~windahrs.filters.base.CovRecord`), at every cov_every-th
+    IMU sample (default: as ``run``, every sample within
+    :data:`~windahrs.core.layout.COV_BUDGET` per flight).
+
+    The preparation (merging each flight's events, encoding its state) and the Estimates'
+    checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
+    other; they overlap the filters: the flights go in chunks (:func:`chunk_size`), and
+    while one chunk's filters run, the previous chunk's Estimates are built and the next
+    chunk is prepared. Every flight is checked for its sensors before any runs."""
+    flights = list(flights)
+    inits = initial_per_flight(initial, len(flights))
+    n_threads = _threads(threads)
+    if cov not in COV_RECORDS:
+        raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
+    for f in flights:
+        est.check(f)
+    # longest first (by IMU samples), so that the last runs of a chunk are short
+    by_length = sorted(range(len(flights)), key=lambda i: -len(flights[i].imu.t))
+    size = chunk_size(len(flights), n_threads)
+    out: list[Estimate | None] = [None] * len(flights)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as pool:
+        pending: tuple[Future[None], list[PreparedRun], list[int]] | None = None
+        for c0 in range(0, len(flights), size):
+            chunk = by_length[c0 : c0 + size]
+            args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every) for i in chunk])
+            running = pool.submit(_launch, args, n_threads)  # starts when the previous chunk is done
+            if pending is not None:
+                _collect(est, pending, out)
+            pending = (running, runs, chunk)
+        if pending is not None:
+            _collect(est, pending, out)
+    return [e for e in out if e is not None]
+
+
+def chunk_size(n_runs: int, threads: int) -> int:
+    """How many runs go to the threads at once: about a quarter of the runs (so that the
+    Python work of the others overlaps them), at least two per thread (so that the
+    threads stay busy to the end of a chunk)."""
+    return max(2 * threads, -(-n_runs // 4), 1)
+
+
+def _launch(args: tuple[object, ...], threads: int) -> None:
+    """The packed runs (:func:`_pack`) through :func:`_run_packed` on ``threads`` threads,
+    in the order given (numba's thread count and chunk size are per Python thread: set
+    here, in the thread that makes the call)."""
+    order = np.arange(len(args[0]), dtype=np.int64)  # type: ignore[arg-type]
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        with numba.parallel_chunksize(1), _guard():
+            _run_packed(*args, order)
+    finally:
+        numba.set_num_threads(before)
+
+
+def _collect(
+    est: CompiledEstimator,
+    pending: tuple[Future[None], list[PreparedRun], list[int]],
+    out: list[Estimate | None],
+) -> None:
+    """Wait for a chunk's filters and put its Estimates at their flights' places."""
+    running, runs, chunk = pending
+    running.result()
+    for i, r in zip(chunk, runs, strict=True):
+        out[i] = est.finish(r)
+
+
+#: Serialises the parallel calls where numba's threading layer cannot take concurrent ones.
+_LAYER_LOCK = threading.Lock()
+
+
+def _guard() -> contextlib.AbstractContextManager[object]:
+    """A lock around the parallel call when numba's threading layer is workqueue (not
+    thread-safe: numba aborts the process on concurrent calls) or not chosen yet (the first
+    call chooses it); nothing for OpenMP and TBB."""
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel call yet
+        layer = None
+    return _LAYER_LOCK if layer in (None, "workqueue") else contextlib.nullcontext()
