@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from windahrs.core.imu_screen import CLIP_F, CLIP_W
+from windahrs.core.imu_screen import CLIP_F, CLIP_SAMPLES, CLIP_W
 from windahrs.core.layout import SENSOR_STREAMS, SENSORS
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
@@ -69,12 +69,11 @@ FLAGS: dict[str, tuple[int, str]] = {
 #: spans several steps of their converters, so a live sensor does not repeat itself for long.
 STUCK_S = 0.2
 STUCK_SAMPLES = 5
-#: An IMU axis holding one magnitude of at least CLIP_MIN_W rad/s or CLIP_MIN_F m/s^2 for this
-#: many samples in a row is clipped: noise moves a live axis by converter steps at every sample,
+#: An IMU axis holding one magnitude of at least CLIP_MIN_W rad/s or CLIP_MIN_F m/s^2 for
+#: CLIP_SAMPLES (core.imu_screen) samples in a row is clipped: noise moves a live axis by converter steps at every sample,
 #: and only a clipped (or stuck) one holds a large value exactly. The minima are the smallest
 #: full scales autopilot IMUs are set to (125 deg/s on the BMI088, 250 on the MPU-6000/9250;
 #: 2 g), below which a slow, quantised axis may repeat itself (BROAD's does at 0.05 rad/s).
-CLIP_SAMPLES = 3
 CLIP_MIN_W = CLIP_W
 CLIP_MIN_F = CLIP_F
 #: The magnetometer's field is disturbed when its norm is off the reference's by more than

@@ -54,6 +54,7 @@ from windahrs.core.layout import (
     R_ACC_RANGE,
     R_GYRO_RANGE,
     R_SPIKE_GATE,
+    S_CLIP,
     S_FLAST,
     S_INIT,
     S_NHELD,
@@ -74,7 +75,7 @@ from windahrs.core.layout import (
 from windahrs.core.predict import add_unmeasured_motion
 from windahrs.core.quat import _dcm9, _qexp, _qmul, _qnormalize
 
-__all__ = ["CLIP_F", "CLIP_W", "FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
+__all__ = ["CLIP_F", "CLIP_SAMPLES", "CLIP_W", "FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
 
 #: The fields of EskfParams the screen reads.
 PARAMS = ("gyro_range", "accel_range", "imu_spike_gate")
@@ -88,11 +89,14 @@ TAU_CHANGES = 1.0
 #: glitch turns the attitude by less than 0.3 deg at 200 Hz.
 FLOOR_W = 1.0
 FLOOR_F = 9.80665
-#: An axis repeating a magnitude of at least this exactly is clipped, rad/s and m/s^2: the
-#: smallest full scales autopilot IMUs are set to (125 deg/s, BMI088; 2 g); noise moves a live
-#: axis by converter steps at every sample (windahrs.flags.CLIP_MIN_W, CLIP_MIN_F: the same).
+#: An axis repeating a magnitude of at least this exactly for CLIP_SAMPLES samples in a row is
+#: clipped, rad/s and m/s^2: the smallest full scales autopilot IMUs are set to (125 deg/s,
+#: BMI088; 2 g). Noise moves a live axis by converter steps at nearly every sample; BROAD's
+#: quantised gyro repeats a value above 125 deg/s 3 and 4 times in a row, never 5
+#: (windahrs.flags uses the same constants).
 CLIP_W = 125.0 * math.pi / 180.0
 CLIP_F = 2.0 * 9.80665
+CLIP_SAMPLES = 5
 #: Longer steps are not screened, s (the motion between the samples was not measured).
 GAP = 0.1
 
@@ -134,17 +138,22 @@ def _catch_up(cfg, x, flags, dt, w, f):
 
 
 @njit(**_JIT)
-def _clipped(cfg, x, P, work, row, dt):
-    """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) since the last
-    sample are clipped: the true value is beyond it by as much as it again, unknown, and
-    that step's motion becomes spread, as a held sample's would (PX4 EKF2 likewise sets the
-    delta-velocity noise of a clipping axis to BADACC_BIAS_PNOISE, 4.9 m/s^2)."""
+def _clipped(cfg, x, flags, P, work, row, dt):
+    """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) for
+    :data:`CLIP_SAMPLES` samples are clipped: the true value is beyond it by as much as it
+    again, unknown, and that step's motion becomes spread, as a held sample's would (PX4 EKF2
+    likewise sets the delta-velocity noise of a clipping axis to BADACC_BIAS_PNOISE, 4.9 m/s^2)."""
     clip = False
-    for a in range(3):
-        dw = abs(row[a]) if abs(row[a]) >= CLIP_W and abs(row[a]) == abs(x[X_WLAST + a]) else 0.0
-        df = abs(row[3 + a]) if abs(row[3 + a]) >= CLIP_F and abs(row[3 + a]) == abs(x[X_FLAST + a]) else 0.0
-        x[X_DW + a], x[X_DF + a] = dw, df
-        clip = clip or dw > 0 or df > 0
+    for a in range(6):
+        v, last = abs(row[a]), abs(x[X_WLAST + a] if a < 3 else x[X_FLAST + a - 3])
+        held = v >= (CLIP_W if a < 3 else CLIP_F) and v == last
+        flags[S_CLIP + a] = flags[S_CLIP + a] + 1 if held else 0
+        d = v if flags[S_CLIP + a] >= CLIP_SAMPLES - 1 else 0.0
+        if a < 3:
+            x[X_DW + a] = d
+        else:
+            x[X_DF + a - 3] = d
+        clip = clip or d > 0
     if clip:
         add_unmeasured_motion(cfg, x, P, work, dt)
 
@@ -201,7 +210,7 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
         beyond_w = beyond_w or abs(row[a]) > gr
         beyond_f = beyond_f or abs(row[3 + a]) > ar
     if flags[S_INIT] == 1 and 0 < dt <= GAP:
-        _clipped(cfg, x, P, work, row, dt)
+        _clipped(cfg, x, flags, P, work, row, dt)
     hold_w, hold_f = beyond_w, beyond_f
     if k > 0 and 0 < dt <= GAP:
         hold_w = hold_w or dw2 > gw2

@@ -214,7 +214,8 @@ S_AINS = 14  # X_AINS is set
 K_SKIP = 15  # (4,) NaN samples skipped: imu, mag, gnss, air
 S_NHELD = 19  # the last IMU sample's held parts (imu_screen): 1 its angular rate, 2 its specific force, 3 both
 S_HEADLESS = 20  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
-L_CNT = 21  # (N_SENSORS,) log rows used per sensor
+S_CLIP = 21  # (6,) samples in a row each IMU axis has repeated one large magnitude (imu_screen)
+L_CNT = 27  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 
