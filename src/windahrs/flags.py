@@ -70,10 +70,9 @@ FLAGS: dict[str, tuple[int, str]] = {
 STUCK_S = 0.2
 STUCK_SAMPLES = 5
 #: An IMU axis holding one magnitude of at least CLIP_MIN_W rad/s or CLIP_MIN_F m/s^2 for
-#: CLIP_SAMPLES (core.imu_screen) samples in a row is clipped: noise moves a live axis by converter steps at every sample,
-#: and only a clipped (or stuck) one holds a large value exactly. The minima are the smallest
-#: full scales autopilot IMUs are set to (125 deg/s on the BMI088, 250 on the MPU-6000/9250;
-#: 2 g), below which a slow, quantised axis may repeat itself (BROAD's does at 0.05 rad/s).
+#: CLIP_SAMPLES samples in a row is clipped (core.imu_screen's constants): noise moves a live
+#: axis by converter steps at every sample, and only a clipped (or stuck) one holds a large
+#: value exactly.
 CLIP_MIN_W = CLIP_W
 CLIP_MIN_F = CLIP_F
 #: The magnetometer's field is disturbed when its norm is off the reference's by more than
