@@ -102,19 +102,6 @@ GAP = 0.1
 
 
 @njit(**_JIT)
-def _hold(x, work, row, hold_w, hold_f):
-    """The sample to propagate into the scratch row W_IMU: the last propagated angular rate
-    (hold_w) and specific force (hold_f) in place of this sample's; the excess kept in X_PEND."""
-    held = work[W_IMU]
-    for a in range(3):
-        held[a] = x[X_WLAST + a] if hold_w else row[a]
-        held[3 + a] = x[X_FLAST + a] if hold_f else row[3 + a]
-        x[X_PEND + a] = row[a] - held[a]
-        x[X_PEND + 3 + a] = row[3 + a] - held[3 + a]
-    return held
-
-
-@njit(**_JIT)
 def _catch_up(cfg, x, flags, dt, w, f):
     """The held sample was motion: its step's excess over what was propagated added to the
     nominal state (w: its rotation; f: for the INS, its velocity increment rotated to NED),
