@@ -1064,6 +1064,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if retry is not None:  # 10 ms on, outside this hook and the finaliser
                 signal.setitimer(signal.ITIMER_REAL, 0.01)
             return
+        if interrupted:  # an object a Ctrl-C cut off half-built, failing in its finaliser: the
+            return  # interrupt's own consequence, said by its one line
         print(f"windahrs {args.command}: warning: ignored in {u.object!r}: {u.exc_type.__name__}: "
               f"{' '.join(str(u.exc_value).split())}", file=sys.stderr)
 
