@@ -459,38 +459,44 @@ def _hold(s: dict[str, F64], m: NDArray[np.bool_], keys: Sequence[str]) -> None:
 
 
 @dataclass(frozen=True)
-class GyroSaturation(Fault):
+class _Clipping(Fault):
+    """Each axis of an IMU column (``_column``: "w_b" or "f_b") clipped to +-``limit``
+    (in ``_unit``), the field each subclass declares with its default."""
+
+    _column: ClassVar[str] = ""
+    _unit: ClassVar[str] = ""
+
+    def _check(self) -> None:
+        if self.limit <= 0:  # type: ignore[attr-defined]
+            raise self._bad("limit", f"a range > 0 {self._unit}")
+
+    def _apply(self, raw: RawFlight, s: dict[str, F64], rng: np.random.Generator) -> None:
+        m = self.mask(s["t"])
+        lim = self.limit  # type: ignore[attr-defined]
+        s[self._column][m] = np.clip(s[self._column][m], -lim, lim)
+
+
+@dataclass(frozen=True)
+class GyroSaturation(_Clipping):
     """Each gyro axis clipped to +-``limit`` rad/s (default the MPU-9150's smallest range,
     250 deg/s): motion beyond the configured range reads as the range."""
 
     limit: float = MPU9150_GYRO_MIN_RANGE
     kind: ClassVar[str] = "gyro-saturation"
-
-    def _check(self) -> None:
-        if self.limit <= 0:
-            raise self._bad("limit", "a range > 0 rad/s")
-
-    def _apply(self, raw: RawFlight, s: dict[str, F64], rng: np.random.Generator) -> None:
-        m = self.mask(s["t"])
-        s["w_b"][m] = np.clip(s["w_b"][m], -self.limit, self.limit)
+    _column: ClassVar[str] = "w_b"
+    _unit: ClassVar[str] = "rad/s"
 
 
 @dataclass(frozen=True)
-class AccelSaturation(Fault):
+class AccelSaturation(_Clipping):
     """Each accelerometer axis clipped to +-``limit`` m/s^2 (default the MPU-9150's smallest
     range, 2 g). With vibration (:class:`VibrationBurst`) the clipping rectifies: the mean
     specific force is biased, the classic vibration failure of multirotors."""
 
     limit: float = MPU9150_ACCEL_MIN_RANGE
     kind: ClassVar[str] = "accel-saturation"
-
-    def _check(self) -> None:
-        if self.limit <= 0:
-            raise self._bad("limit", "a range > 0 m/s^2")
-
-    def _apply(self, raw: RawFlight, s: dict[str, F64], rng: np.random.Generator) -> None:
-        m = self.mask(s["t"])
-        s["f_b"][m] = np.clip(s["f_b"][m], -self.limit, self.limit)
+    _column: ClassVar[str] = "f_b"
+    _unit: ClassVar[str] = "m/s^2"
 
 
 @dataclass(frozen=True)
