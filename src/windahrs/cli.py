@@ -629,6 +629,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from windahrs.filters.auto import describe_choice
     from windahrs.filters.registry import make_estimator
     from windahrs.metrics import reference_of, score
+    from windahrs.windfit import describe_wind_fit
 
     if args.out is not None:
         if args.out.exists() and args.file.exists() and args.out.resolve() == args.file.resolve():
@@ -640,6 +641,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     chose = describe_choice(result)
     if chose is not None:
         print(chose)
+    fitted = describe_wind_fit(result)
+    if fitted is not None:
+        print(fitted)
     if args.out is not None:
         save_estimate(result, args.out)
         print(f"wrote {args.out}")
@@ -673,6 +677,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from windahrs.experiments.compare import AlignmentError, compare, select_estimators
     from windahrs.filters.auto import describe_choice
     from windahrs.filters.registry import make_estimator
+    from windahrs.windfit import describe_wind_fit
 
     if args.filters is not None:
         estimators = [make_estimator(n) for n in _specs(args.filters)]  # fail on a bad name before any work
@@ -692,6 +697,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         chose = describe_choice(est)
         if chose is not None:
             _note(chose)
+        fitted = describe_wind_fit(est)
+        if fitted is not None:
+            _note(fitted)
     al = res.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")

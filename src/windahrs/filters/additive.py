@@ -757,10 +757,11 @@ class AdditiveEstimator(Estimator):
             innovations=_innovations(st),
             skipped={s: int(v) for s, v in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
-            meta=self._meta(st),
+            meta=self._meta(st, wind),
         ), flight)
 
-    def _meta(self, st: KernelState) -> dict[str, Any]:
+    def _meta(self, st: KernelState, wind: WindProvider | None = None) -> dict[str, Any]:
+        """``Estimate.meta`` of a batch run: the final state and the wind provider it used."""
         return {}
 
 

@@ -39,6 +39,7 @@ from windahrs.filters.additive import (
 )
 from windahrs.filters.base import InitialState, MissingSensorError
 from windahrs.flight import Flight, Site
+from windahrs.windfit import WindFit, WindFitError, fit_flight_wind
 
 __all__ = [
     "PaperEKF",
@@ -51,7 +52,7 @@ __all__ = [
 F64 = NDArray[np.float64]
 
 InitMode = Literal["paper", "triad"]
-WindMode = Literal["oracle", "mean"]
+WindMode = Literal["oracle", "mean", "fit"]
 
 
 @dataclass(frozen=True)
@@ -88,20 +89,28 @@ class PaperParams(PaperNoWindParams):
     how: "oracle" is the instantaneous TRUE wind of a simulation (an oracle no real
     vehicle has; it reproduces the paper's claim, SPEC 7.4), "mean" a constant wind:
     ``mean_wind_n`` or, when None, the time mean of the flight's truth (or reference)
-    wind. mean_wind_n: (north, east, down) m/s or None. gnss_max_age: s, a GNSS velocity
-    older than this is not used for the air-flow row.
+    wind, "fit" the constant wind fitted from the flight itself (its GNSS velocity and
+    airspeed, the wind triangle ``|v - w| = k * airspeed``, :mod:`windahrs.windfit`; real
+    data). mean_wind_n: (north, east, down) m/s or None (in a filter spec
+    ``mean_wind_n=3/-2/0``, in TOML ``mean_wind_n = [3, -2, 0]``). gnss_max_age: s, a GNSS
+    velocity older than this is not used for the air-flow row (nor paired with an airspeed
+    sample by the wind fit). wind_fit_scale: with wind="fit", None fits the pitot scale k
+    with the wind; a number holds k (a calibrated pitot; see :func:`windahrs.windfit.fit_wind`).
     """
 
     air_var: float = 20.0
     wind: WindMode = "oracle"
     mean_wind_n: tuple[float, float, float] | None = None
     gnss_max_age: float = 1.0
+    wind_fit_scale: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_number(self, "air_var", positive=True)
         check_number(self, "gnss_max_age", positive=True)
-        check_choice(self, "wind", ("oracle", "mean"))
+        check_choice(self, "wind", ("oracle", "mean", "fit"))
+        if self.wind_fit_scale is not None:
+            check_number(self, "wind_fit_scale", positive=True)
         m = self.mean_wind_n
         if m is not None:
             ok = isinstance(m, tuple | list) and len(m) == 3
@@ -109,6 +118,8 @@ class PaperParams(PaperNoWindParams):
             if not ok or not np.isfinite(np.asarray(m, dtype=np.float64)).all():
                 raise bad_param(self, "mean_wind_n", "None or 3 finite numbers (north, east, down) m/s")
             object.__setattr__(self, "mean_wind_n", tuple(float(v) for v in m))
+            if self.wind == "fit":
+                raise bad_param(self, "mean_wind_n", "None with wind='fit' (the fit gives the wind)")
 
 
 
@@ -127,10 +138,12 @@ class OracleWind:
 
 
 class ConstantWind:
-    """A constant wind ``t -> wind_n`` (3,) m/s NED; ``at(t)`` (K, 3) for many times."""
+    """A constant wind ``t -> wind_n`` (3,) m/s NED; ``at(t)`` (K, 3) for many times.
+    fit: the wind-triangle fit it came from (``wind="fit"``), else None."""
 
-    def __init__(self, wind_n: F64) -> None:
+    def __init__(self, wind_n: F64, fit: WindFit | None = None) -> None:
         self._w = np.asarray(wind_n, dtype=np.float64)
+        self.fit = fit
 
     def at(self, t: F64) -> F64:
         return np.tile(self._w, (len(t), 1))
@@ -204,6 +217,11 @@ class PaperEKF(AdditiveEstimator):
       its claim (SPEC 7.4). Needs a Flight with truth.
     * "mean": a constant wind, ``params.mean_wind_n`` or the flight's time-mean truth (or
       reference) wind; gusts then corrupt the row (SPEC 3.4.3).
+    * "fit": the constant wind fitted from the flight's own GNSS velocity and airspeed
+      (:func:`windahrs.windfit.fit_flight_wind`, horizontal: ``w_d = 0``); what a real log
+      allows. The fit and its pitot scale k are in ``Estimate.meta`` (``wind_fit_*``). The
+      air row is a direction (vanes against ``V_n - W``): it uses no airspeed, so k enters
+      only the fit, where the airspeed is taken as ``k * airspeed``.
 
     R of the air row is ``air_var`` (20) per component: the paper does not give it (T31).
     Needs vanes (angle of attack and sideslip) and GNSS velocity. Air samples without a
@@ -251,10 +269,17 @@ class PaperEKF(AdditiveEstimator):
             if tr is None or tr.wind_n is None:
                 raise ValueError(
                     "PaperParams.wind: expected a flight with simulation truth for the 'oracle' "
-                    "wind (the oracle needs flight.truth.wind_n), found none; use wind='mean' "
-                    "with mean_wind_n for real data"
+                    "wind (the oracle needs flight.truth.wind_n), found none; for real data use "
+                    "wind=fit (the wind fitted from the flight's GNSS velocity and airspeed: "
+                    "paper:wind=fit) or wind=mean with mean_wind_n (paper:wind=mean:mean_wind_n=3/-2/0)"
                 )
             return OracleWind(tr.t, tr.wind_n)
+        if p.wind == "fit":
+            try:
+                fit = fit_flight_wind(flight, scale=p.wind_fit_scale, max_gap=p.gnss_max_age)
+            except WindFitError as exc:
+                raise WindFitError(f"PaperParams.wind='fit': {exc}") from None
+            return ConstantWind(fit.wind_n, fit)
         if p.mean_wind_n is not None:
             mean = np.array(p.mean_wind_n)
         elif tr is not None and tr.wind_n is not None:
@@ -264,7 +289,8 @@ class PaperEKF(AdditiveEstimator):
         else:
             raise ValueError(
                 "PaperParams.mean_wind_n: expected a mean wind (or a flight with truth or "
-                "reference wind to average), found None and neither in the flight"
+                "reference wind to average), found None and neither in the flight; give "
+                "mean_wind_n (paper:wind=mean:mean_wind_n=3/-2/0) or use wind=fit"
             )
         return ConstantWind(mean)
 
@@ -297,8 +323,11 @@ class PaperEKF(AdditiveEstimator):
     def _wind_for(self, flight: Flight) -> WindProvider:
         return self.wind_provider(flight)
 
-    def _meta(self, st: KernelState) -> dict[str, Any]:
+    def _meta(self, st: KernelState, wind: WindProvider | None = None) -> dict[str, Any]:
         meta: dict[str, Any] = {"wind": self.params.wind}
+        fit = getattr(wind, "fit", None)
+        if isinstance(fit, WindFit):
+            meta.update(fit.as_meta())
         for reason, count in sorted(unfused_counts(st).items()):
             meta[f"unfused_{reason}"] = count
         return meta

@@ -55,7 +55,37 @@ def names() -> list[str]:
     return out
 
 
-def _value(text: str) -> object:
+def _number(text: str) -> int | float | None:
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+#: The separator of a vector's components in a filter spec (``mean_wind_n=3/-2/0``): the
+#: spec's own separators are ``:`` (fields) and ``,`` (specs in ``--filters a,b``), and
+#: ``/`` needs no quoting in a shell (``;`` and ``[...]`` do).
+VECTOR_SEP = "/"
+
+
+def _value(text: str, key: str = "", spec: str = "") -> object:
+    """A spec value: true/false, an int, a float, a vector of numbers ``a/b/c`` (a tuple),
+    else the text. ValueError naming the field and the value for a vector with a part that
+    is not a number."""
+    if VECTOR_SEP in text:
+        parts = [p.strip() for p in text.split(VECTOR_SEP)]
+        nums = [_number(p) for p in parts]
+        bad = [p for p, v in zip(parts, nums, strict=True) if v is None]
+        if bad:
+            raise ValueError(
+                f"filter {spec!r}: {key}: expected numbers separated by {VECTOR_SEP!r} (e.g. {key}=3/-2/0), "
+                f"found {text!r} ({bad[0]!r} is not a number)"
+            )
+        return tuple(nums)
     low = text.lower()
     if low in ("true", "false"):
         return low == "true"
@@ -71,8 +101,9 @@ def _value(text: str) -> object:
 
 def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimator:
     """Build an estimator from a spec ``NAME`` or ``NAME:field=value:field=value`` (fields of
-    its parameter record, e.g. ``paper:wind=mean`` or ``mekf:mag_mode=heading``), with
-    parameters from a TOML file first when given.
+    its parameter record, e.g. ``paper:wind=mean`` or ``mekf:mag_mode=heading``; a vector
+    field's components separated by ``/``, e.g. ``paper:wind=mean:mean_wind_n=3/-2/0``),
+    with parameters from a TOML file first when given.
 
     Unknown names raise ValueError listing the known ones; unknown fields name the field.
     """
@@ -82,7 +113,7 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
         key, sep, val = a.partition("=")
         if not sep or not key:
             raise ValueError(f"filter {spec!r}: expected NAME:field=value, found {a!r}")
-        overrides[key.strip()] = _value(val.strip())
+        overrides[key.strip()] = _value(val.strip(), key.strip(), spec)
     est = _build(name, params_file)
     if not overrides:
         return est
