@@ -872,7 +872,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     e.add_argument("file", type=_path, metavar="FILE", help="a windahrs flight file or a log")
     e.add_argument("--filter", default="auto", metavar="NAME",
-                   help="estimator spec, e.g. ins-wind or mekf:mag_mode=heading (default: auto, which runs ins-wind "
+                   help="estimator spec, e.g. ins-wind, mekf:mag_mode=heading or paper:wind=mean:mean_wind_n=3/-2/0 "
+                   "(a vector's components separated by /) (default: auto, which runs ins-wind "
                    "when the flight has GNSS velocity, else mekf, and prints which)")
     e.add_argument(
         "--params",
