@@ -91,6 +91,20 @@ def test_fit_refuses_a_straight_line_naming_the_heading_span() -> None:
         fit_wind(t_g, v_n, t_a, tas)
 
 
+def test_fit_refuses_an_implausible_pitot_scale() -> None:
+    # straight and noisy: the degenerate answer (the wind = the ground velocity, k near 0)
+    rng = np.random.default_rng(5)
+    t_g, v_n, t_a, tas, _ = _triangle([3.0, -2.0, 0.0], 1.0, turn_rate=0.0)
+    noisy = v_n + rng.normal(0.0, 0.3, v_n.shape)
+    with pytest.raises(WindFitError, match=r"k held at 1 the air-relative course covers [0-9.]+ deg, expected at"):
+        fit_wind(t_g, noisy, t_a, tas + rng.normal(0.0, 0.3, tas.shape))
+    # turns, but a pitot reading a third of the airspeed: k = 3
+    t_g, v_n, t_a, tas, _ = _triangle([3.0, -2.0, 0.0], 3.0)
+    with pytest.raises(WindFitError, match=r"pitot scale k 3 is outside 0.5 to 2 .*is the pitot broken\?"):
+        fit_wind(t_g, v_n, t_a, tas)
+    assert fit_wind(t_g, v_n, t_a, tas * 3.0).scale == pytest.approx(1.0, abs=1e-3)
+
+
 def test_fit_refuses_missing_or_unpaired_streams() -> None:
     t_g, v_n, t_a, tas, _ = _triangle([3.0, -2.0, 0.0], 1.0)
     imu = ImuStream(t=t_g, w_b=np.zeros((len(t_g), 3)), f_b=np.tile([0.0, 0.0, -9.8], (len(t_g), 1)))
@@ -187,6 +201,30 @@ def test_paper_wind_fit_on_a_simulated_flight() -> None:
     np.testing.assert_array_equal(same.q_nb, est.q_nb)
 
 
+def test_cli_prints_the_fit(tmp_path, capsys) -> None:
+    from windahrs.cli import main
+    from windahrs.store import save_flight
+
+    flight = simulate(make_scenario("fixedwing", wind=8.0, duration=40.0), np.random.default_rng(0))
+    path = tmp_path / "fw.h5"
+    save_flight(flight, path)
+    assert main(["estimate", str(path), "--filter", "paper:wind=fit"]) == 0
+    out = capsys.readouterr().out
+    assert "paper:wind=fit: wind fit: north " in out and "pitot scale k " in out
+    assert main(["compare", str(path), "--filters", "paper:wind=fit:wind_fit_scale=1,paper-nowind"]) == 0
+    err = capsys.readouterr().err
+    assert "windahrs: paper:wind=fit:wind_fit_scale=1: wind fit: north " in err and "k 1.0000 (held)" in err
+
+
+def test_experiment_reports_the_fit() -> None:
+    from windahrs.experiments.montecarlo import run_wind_experiment
+
+    rows = run_wind_experiment("fixedwing", 8.0, 40.0, 1, ["paper:wind=fit", "paper:wind=mean"])
+    fit, mean = rows
+    assert fit.wind_fit_ms is not None and fit.wind_fit_max_ms == fit.wind_fit_ms and fit.wind_fit_ms < 3.0
+    assert mean.wind_fit_ms is None and fit.as_dict()["wind_fit_ms"] == fit.wind_fit_ms
+
+
 def test_paper_without_truth_wind_names_the_alternatives() -> None:
     sc = make_scenario("fixedwing", wind=8.0, duration=5.0)
     flight = simulate(sc, np.random.default_rng(0))
@@ -195,8 +233,8 @@ def test_paper_without_truth_wind_names_the_alternatives() -> None:
         PaperEKF().run(real)
     with pytest.raises(ValueError, match=r"mean_wind_n=3/-2/0\) or use wind=fit"):
         make_estimator("paper:wind=mean").run(real)
-    # a straight 5 s of flight (the track within 14 deg): the fit refuses, naming the span
-    with pytest.raises(WindFitError, match=r"PaperParams.wind='fit': wind fit: ill-conditioned.*ground track covers"):
+    # a straight 5 s of flight (the track within 15 deg): the fit refuses, naming the span
+    with pytest.raises(WindFitError, match=r"PaperParams.wind='fit': wind fit: ill-conditioned.*k held at 1 the air"):
         make_estimator("paper:wind=fit").run(real)
 
 

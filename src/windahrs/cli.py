@@ -362,7 +362,9 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
     winds = any(r.wind_rmse_h_ms is not None for r in rows)
     wind_head = f" |{'wind m/s':>9}{'dir deg':>8}{'max':>7}" if winds else ""
-    print(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}{'s/run':>8}{wind_head}")
+    fits = any(r.wind_fit_ms is not None for r in rows)
+    fit_head = f" |{'fit m/s':>9}{'max':>7}" if fits else ""
+    print(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}{'s/run':>8}{wind_head}{fit_head}")
     for r in rows:
         a, b = r.rmse_from50_deg, r.rmse_steady_deg
         wind = ""
@@ -373,12 +375,21 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
                 and r.wind_direction_max_deg is not None
                 else f"{'-':>9}{'-':>8}{'-':>7}"
             )
+        if fits:
+            wind += " |" + (
+                f"{r.wind_fit_ms:9.3f}{r.wind_fit_max_ms:7.3f}"
+                if r.wind_fit_ms is not None and r.wind_fit_max_ms is not None
+                else f"{'-':>9}{'-':>7}"
+            )
         print(
             f"{r.filter:<{width}}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
             f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}{r.seconds:8.2f}{wind}"
         )
     if winds:
         print(f"wind: horizontal RMSE and direction error of the mean wind from {WIND_FROM_S:g} s on, RMS over runs")
+    if fits:
+        print("fit: horizontal distance of the fitted constant wind (wind=fit) from the flight's mean true wind, "
+              "RMS over runs, and the largest")
     return 0
 
 

@@ -169,6 +169,32 @@ def _linear_start(v: F64, a: F64) -> F64:
     return start if np.isfinite(start).all() else np.r_[np.zeros(v.shape[1]), 1.0]
 
 
+def _solve(v: F64, a: F64, scale: float | None, loss: str, f_scale: float) -> F64:
+    """The robust least-squares solution: (wind..., k) with ``scale`` None, else (wind...)."""
+    dims = v.shape[1]
+    start = _linear_start(v, a)
+
+    def residual(p: F64) -> F64:
+        k = p[dims] if scale is None else scale
+        return np.linalg.norm(v - p[:dims], axis=1) - k * a
+
+    def jacobian(p: F64) -> F64:
+        d = v - p[:dims]
+        u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-9)[:, None]
+        return np.column_stack([-u, -a]) if scale is None else -u
+
+    if scale is not None:
+        start = start[:dims]
+    sol = least_squares(residual, start, jac=jacobian, loss=loss, f_scale=f_scale, x_scale="jac")
+    x: F64 = sol.x
+    return x
+
+
+def _air_course_span(v: F64, wind: F64) -> float:
+    d = v - wind[: v.shape[1]]
+    return heading_span_deg(np.arctan2(d[:, 1], d[:, 0]))
+
+
 def fit_wind(
     t_gnss: F64,
     v_n: F64,
@@ -189,9 +215,9 @@ def fit_wind(
     samples with a NaN, or a non-positive airspeed, are left out. horizontal: ``w_d = 0``
     and only v_n's north and east enter (a GNSS without vertical velocity, PX4's and
     ArduPilot's 2-D wind). scale: None fits k; a number holds it (a calibrated pitot: on
-    simulated W20 = 8 m/s flights with Dryden turbulence, k = 1 held put the wind 0.12 to
-    0.21 m/s from the flight's mean true wind, k fitted 0.22 to 0.65 m/s: low-frequency
-    turbulence along the wind trades against k). WindFitError when fewer than :data:`MIN_PAIRS` samples pair up,
+    simulated W20 = 8 m/s, 120 s flights with Dryden turbulence, seeds 0..4, k = 1 held put
+    the wind 0.12 to 0.31 m/s from the flight's mean true wind, k fitted 0.22 to 0.65 m/s:
+    turbulence trades against k). WindFitError when fewer than :data:`MIN_PAIRS` samples pair up,
     when the course covers less than :data:`MIN_HEADING_SPAN_DEG`, or when the solution is
     ill-conditioned.
     """
@@ -234,20 +260,21 @@ def fit_wind(
         u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-9)[:, None]
         return np.column_stack([-u, -a]) if free else -u
 
-    start = _linear_start(v, a)
-    if not free:
-        start = start[:dims]
-    sol = least_squares(residual, start, jac=jacobian, loss=loss, f_scale=f_scale, x_scale="jac")
-    p = sol.x
-    d = v - p[:dims]
-    span = heading_span_deg(np.arctan2(d[:, 1], d[:, 0]))
+    p = _solve(v, a, scale, loss, f_scale)
     k = k_of(p)
+    span = _air_course_span(v, p[:dims])
     if not SCALE_RANGE[0] <= k <= SCALE_RANGE[1]:
-        track = heading_span_deg(np.arctan2(v[:, 1], v[:, 0]))
+        # k held at 1 says whether the flight turned at all
+        span1 = _air_course_span(v, _solve(v, a, 1.0, loss, f_scale))
+        why = (
+            f"with k held at 1 the air-relative course covers {span1:.1f} deg, expected at least "
+            f"{MIN_HEADING_SPAN_DEG:g} deg: without turns the flight does not determine the wind"
+            if span1 < MIN_HEADING_SPAN_DEG
+            else f"the air-relative course covers {span1:.1f} deg with k held at 1: is the pitot broken?"
+        )
         raise WindFitError(
             f"wind fit: ill-conditioned: the fitted pitot scale k {k:.3g} is outside {SCALE_RANGE[0]:g} to "
-            f"{SCALE_RANGE[1]:g} (the GNSS ground track covers {track:.1f} deg; without turns the flight does "
-            "not determine the wind, and a pitot that far off is broken)"
+            f"{SCALE_RANGE[1]:g} ({why})"
         )
     if span < MIN_HEADING_SPAN_DEG:
         raise WindFitError(
