@@ -116,6 +116,8 @@ def test_fit_refuses_missing_or_unpaired_streams() -> None:
         fit_flight_wind(Flight(imu=imu))
     with pytest.raises(WindFitError, match=r"airspeed samples with GNSS velocity within 1 s, found 0"):
         fit_wind(t_g, v_n, t_a + 1000.0, tas)  # no overlap in time
+    with pytest.raises(WindFitError, match=r"found 0 \(of 3997 airspeed samples, 0 of them > 0 m/s, and 2000 GNSS"):
+        fit_wind(t_g, v_n, t_a, -tas)  # a pitot reading its negative offset on the ground
     with pytest.raises(WindFitError, match="expected GNSS velocity"):
         fit_wind(t_g[:1], v_n[:1], t_a, tas)
     with pytest.raises(ValueError, match="fit_wind.scale"):
@@ -126,6 +128,14 @@ def test_heading_span() -> None:
     assert heading_span_deg(np.radians([350.0, 10.0])) == pytest.approx(20.0)
     assert heading_span_deg(np.radians([0.0, 90.0, 180.0, 270.0])) == pytest.approx(270.0)
     assert heading_span_deg(np.array([])) == 0.0
+
+
+def test_info_prints_the_fit(capsys) -> None:
+    from windahrs.cli import main
+
+    path = require_data("alfa", ALFA_SEQUENCE)
+    assert main(["info", str(path)]) == 0
+    assert "wind fit   north -1.6" in capsys.readouterr().out
 
 
 def test_meta_round_trip_and_description() -> None:

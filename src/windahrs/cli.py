@@ -602,6 +602,13 @@ def _cmd_info(args: argparse.Namespace) -> int:
     print(f"file       {args.file}")
     print(f"format     {detect_format(args.file)}")
     print(flight.summary())
+    if flight.gnss is not None and flight.air is not None:  # the wind triangle (paper:wind=fit's wind)
+        from windahrs.windfit import WindFitError, fit_flight_wind
+
+        try:
+            print(f"wind fit   {fit_flight_wind(flight).text().removeprefix('wind fit: ')}")
+        except WindFitError as exc:
+            print(f"wind fit   none: {str(exc).removeprefix('wind fit: ')}")
     return 0
 
 

@@ -234,7 +234,8 @@ def fit_wind(
     tg, vg = t_gnss[good_g], v_n[good_g, :dims]
     if len(tg) < 2:
         raise WindFitError(f"wind fit: expected GNSS velocity (2 or more samples), found {len(tg)}")
-    keep = np.isfinite(t_air) & np.isfinite(tas) & (tas > 0) & (t_air >= tg[0]) & (t_air <= tg[-1])
+    positive = np.isfinite(t_air) & np.isfinite(tas) & (tas > 0)
+    keep = positive & (t_air >= tg[0]) & (t_air <= tg[-1])
     idx = np.clip(np.searchsorted(tg, t_air), 1, len(tg) - 1)
     near = np.maximum(np.abs(t_air - tg[idx - 1]), np.abs(tg[idx] - t_air))  # both neighbours close
     keep &= near <= max_gap
@@ -242,7 +243,8 @@ def fit_wind(
     if n < MIN_PAIRS:
         raise WindFitError(
             f"wind fit: expected at least {MIN_PAIRS} airspeed samples with GNSS velocity within {max_gap:g} s, "
-            f"found {n} (of {len(t_air)} airspeed and {len(tg)} GNSS samples)"
+            f"found {n} (of {len(t_air)} airspeed samples, {int(positive.sum())} of them > 0 m/s, and "
+            f"{len(tg)} GNSS samples)"
         )
     ta, a = t_air[keep], tas[keep]
     v = np.column_stack([np.interp(ta, tg, vg[:, i]) for i in range(dims)])
