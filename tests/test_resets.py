@@ -132,3 +132,17 @@ def test_usque_levels_an_upside_down_start_too() -> None:
         est = wa.estimator("usque").run(flight, initial=_upside_down(flight))
     assert est.resets["accel"][0, 1] > np.radians(150)
     assert np.degrees(attitude_errors(est, flight).tilt[est.t > 15.0]).max() < 3.0
+
+
+@pytest.mark.parametrize("spec", ["usque", "ekf7"])
+def test_heading_is_taken_again_after_gravity_levels_an_upside_down_start(spec: str) -> None:
+    # levelling a 180 deg roll turns the attitude about a horizontal axis, which leaves the
+    # heading half a turn off: the next field sample turns it back (core.reset.retake_heading),
+    # instead of after a second reset_timeout
+    flight = wa.simulate("fixedwing", seed=3, wind=0.0, duration=12.0)
+    with pytest.warns(EstimatorWarning):
+        est = wa.estimator(spec).run(flight, initial=_upside_down(flight))
+    assert est.resets["accel"][0, 0] < 5.5
+    assert est.resets["mag"][0, 0] < 5.5 and est.resets["mag"][0, 1] > np.radians(90)
+    total = np.degrees(attitude_errors(est, flight).total)
+    assert total[est.t > 7.0].max() < 3.0

@@ -30,20 +30,16 @@ from windahrs.core.layout import (
     C_AVAR,
     C_COMP,
     C_IBA,
-    C_SITE_MAG,
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
-    INN_MAG,
     R_ACC_LP,
     R_ACC_VAR,
     R_GATE2_ACC,
     R_GRAV,
     R_NORM_GATE,
-    R_RESET_TOUT,
     S_AGNSS,
     S_FBAR,
-    S_MAGN,
     S_VAIR,
     W_NU,
     X_AGNSS,
@@ -53,7 +49,6 @@ from windahrs.core.layout import (
     X_DF,
     X_FBAR,
     X_Q,
-    X_TOK,
     X_VAIR,
 )
 from windahrs.core.quat import (
@@ -64,6 +59,7 @@ from windahrs.core.reset import (
     level_to,
     log_reset,
     reset_gyro_bias,
+    retake_heading,
     set_attitude_cov,
     timed_out,
 )
@@ -145,15 +141,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         set_attitude_cov(cfg, prm, x, P, work)
         reset_gyro_bias(cfg, prm, x, P)
         log_reset(cfg, flags, inn, acc, work, x, sensor, t, angle)
-        if flags[S_FBAR] == 1:
-            # levelled to a mean (not to one raw sample, which a vibrating or accelerating
-            # vehicle can hold far from gravity), the tilt is trusted: a heading held while
-            # it was lost is no better, so the next field sample that disagrees by more than
-            # 45 deg resets it at once, and a reference field taken under the lost tilt is
-            # taken again
-            x[X_TOK + INN_MAG] = min(x[X_TOK + INN_MAG], t - prm[R_RESET_TOUT] - 1e-6)
-            if cfg[C_SITE_MAG] == 0:
-                flags[S_MAGN] = 0
+        retake_heading(cfg, prm, x, flags, t)
         return
     h0, h1, h2 = y0, y1, y2
     if has_k:

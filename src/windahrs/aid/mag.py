@@ -181,13 +181,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         _log(cfg, flags, inn, acc, nu, sensor, t, md, np.nan, np.bool_(False))
         accepted_at(x, sensor, t)  # a disturbed field: the gate is not keeping it out
         return
-    d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
-    if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
-        accepted_at(x, sensor, t)
-    elif timed_out(prm, x, sensor, t) and cfg[C_KIND] != KIND_INS:
-        # (not the INS: its velocity and wind are tied to the heading; turning it alone,
-        # on the ALFA flight, took its tilt from 8 to 35 deg)
-        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
+    if heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
         return
     if mode == MAG_3D:
         c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
@@ -228,6 +222,23 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     work[W_R, 0] = sigma**2
     m, ns = np.int64(1), np.int64(3)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+
+
+@njit(inline="always", **_JIT)
+def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
+    """The heading's reset clock at a field sample m (body) against the reference r: a
+    heading within LOST_HEADING of the field's restarts it (accepted by the gate or not);
+    one further off for reset_timeout is turned to the field's (not in the INS: its
+    velocity and wind are tied to the heading; turning it alone, on the ALFA flight, took
+    its tilt from 8 to 35 deg). Returns whether it reset (the sample is then not fused)."""
+    sensor = np.int64(INN_MAG)
+    d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
+    if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
+        accepted_at(x, sensor, t)
+    elif timed_out(prm, x, sensor, t) and cfg[C_KIND] != KIND_INS:
+        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
+        return True
+    return False
 
 
 @njit(inline="always", **_JIT)

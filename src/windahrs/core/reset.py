@@ -27,10 +27,13 @@ from windahrs.core.layout import (
     C_ADD,
     C_IBG,
     C_N,
+    C_SITE_MAG,
+    INN_MAG,
     INN_RESET,
     R_P0_ATT,
     R_P0_BG,
     R_RESET_TOUT,
+    S_MAGN,
     W_M,
     W_NU,
     X_BG,
@@ -112,6 +115,17 @@ def reset_gyro_bias(cfg, prm, x, P):
     for a in range(3):
         x[X_BG + a] = 0.0
     reopen(cfg, P, cfg[C_IBG], prm[R_P0_BG], prm[R_P0_BG])
+
+
+@njit(**_JIT)
+def retake_heading(cfg, prm, x, flags, t):
+    """After a reset that levelled the attitude: a heading held while the tilt was lost is
+    no better than the tilt was, so the next field sample that disagrees with it by more
+    than the magnetometer's LOST_HEADING turns it at once (windahrs.aid.mag.heading_reset),
+    and a reference field taken under the lost tilt (site field unknown) is taken again."""
+    x[X_TOK + INN_MAG] = min(x[X_TOK + INN_MAG], t - prm[R_RESET_TOUT] - 1e-6)
+    if cfg[C_SITE_MAG] == 0:
+        flags[S_MAGN] = 0
 
 
 @njit(**_JIT)

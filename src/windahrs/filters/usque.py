@@ -42,7 +42,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.aid.gravity import LOST_COS
-from windahrs.aid.mag import mag_reference, measured_heading
+from windahrs.aid.mag import heading_reset, mag_reference, measured_heading
 from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
 from windahrs.core.events import sample_ok
@@ -95,7 +95,15 @@ from windahrs.core.quat import (
     _qnormalize,
     _wrap_pi,
 )
-from windahrs.core.reset import accepted_at, level_to, log_reset, reset_gyro_bias, set_attitude_cov, timed_out
+from windahrs.core.reset import (
+    accepted_at,
+    level_to,
+    log_reset,
+    reset_gyro_bias,
+    retake_heading,
+    set_attitude_cov,
+    timed_out,
+)
 from windahrs.estimate import Estimate
 from windahrs.filters.base import EVENT_IMU, EVENT_MAG, Estimator, InitialState, merge_events
 from windahrs.filters.checks import checked
@@ -377,6 +385,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
         set_attitude_cov(cfg, prm, x, P, work)
         reset_gyro_bias(cfg, prm, x, P)
         log_reset(cfg, flags, inn, acc, work, x, sensor, t, angle)
+        retake_heading(cfg, prm, x, flags, t)
         return
     _sigma(x, P, work)
     _predict_vector(work, -0.0, -0.0, -g)  # -g_n
@@ -396,6 +405,8 @@ def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
     if mode == MAG_OFF:
         return
     rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
+    if heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
+        return
     nu = work[U_NU]
     sensor = np.int64(INN_MAG)
     if mode == MAG_3D:
