@@ -106,3 +106,15 @@ def test_one_vane_fuses_its_angle_of_attack() -> None:
     # air_mode "airspeed" leaves the vane out
     est = make_estimator("ins-wind:air_mode=airspeed").run(f1)
     assert "aoa" not in est.innovations
+
+
+def test_batch_run_and_saved_estimate_keep_the_scale(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from windahrs.estimate import load_estimate, save_estimate
+
+    f = _low_pitot(0, 40.0)
+    est = make_estimator("ins-wind:airspeed_scale=true")
+    one = est.run(f)
+    (batched,) = est.run_batch([f], threads=1)
+    np.testing.assert_array_equal(batched.airspeed_scale, one.airspeed_scale)
+    back = load_estimate(save_estimate(one, tmp_path / "e.h5"))
+    np.testing.assert_array_equal(back.airspeed_scale, one.airspeed_scale)

@@ -7,6 +7,11 @@ tas^2 when it is an input, [mekf-air]), gated at gate_air sigmas. Fused after th
 when a sample's angle of attack is finite and its sideslip NaN (a flight with one vane: the
 air-data vector of :mod:`windahrs.aid.air_vector` needs both). The vane carries pitch and
 vertical-wind information the airspeed alone does not. Innovation key: ``"aoa"`` (1 row).
+
+Noise: vane_sigma, the vanes' of the air-data vector (1 deg): SPEC 5's sensor table puts
+flow-angle vanes at 0.5 to 1 deg, and the upper end allows for the flow a small airframe
+bends at its vane. Neither PX4 EKF2 nor ArduPilot EKF3 fuses a vane, so neither has a
+default to take.
 """
 
 from __future__ import annotations
