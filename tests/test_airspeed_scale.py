@@ -118,3 +118,21 @@ def test_batch_run_and_saved_estimate_keep_the_scale(tmp_path) -> None:  # type:
     np.testing.assert_array_equal(batched.airspeed_scale, one.airspeed_scale)
     back = load_estimate(save_estimate(one, tmp_path / "e.h5"))
     np.testing.assert_array_equal(back.airspeed_scale, one.airspeed_scale)
+
+
+def test_the_commands_print_the_scale(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from windahrs.cli import main
+
+    out = tmp_path / "f.h5"
+    fault = "pitot-scale:start=0:duration=40:scale=0.75"
+    assert main(["simulate", "--duration", "40", "--wind", "8", "--fault", fault, "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["estimate", str(out), "--filter", "ins-wind:airspeed_scale=true"]) == 0
+    assert "ins-wind:airspeed_scale=true: airspeed scale (true / measured) 1.3" in capsys.readouterr().out
+    assert main(["compare", str(out), "--filters", "ins-wind,ins-wind:airspeed_scale=true"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("airspeed scale") == 1  # only the filter that estimated it
+    assert main(["experiment", "--runs", "1", "--duration", "40", "--filters", "ins-wind:airspeed_scale=true",
+                 "--fault", fault]) == 0
+    text = capsys.readouterr().out
+    assert "airspeed scale (true / measured) at the end 1.3" in text and f"faults: {fault}" in text
