@@ -136,3 +136,20 @@ def test_the_commands_print_the_scale(tmp_path, capsys) -> None:  # type: ignore
                  "--fault", fault]) == 0
     text = capsys.readouterr().out
     assert "airspeed scale (true / measured) at the end 1.3" in text and f"faults: {fault}" in text
+
+
+def test_alfa_scale_from_its_own_wind_triangle() -> None:
+    """ALFA's pitot against its GNSS velocity and heading: measured/|v - W_ArduPilot| has a
+    median 0.92 (scale 1.09) and a constant-wind least-squares fit gives 1.07; the on-line
+    scale, with the INS's own heading (8 deg RMS off ArduPilot's), ends at 0.99. It must stay
+    within the +-30 % it starts with, settle (its spread below 3 %), and accept the airspeed."""
+    from conftest import require_data
+
+    from windahrs.io import read_flight
+
+    f = read_flight(require_data("alfa", "carbonZ_2018-07-18-15-53-31_1_engine_failure"))
+    with pytest.warns(Warning):
+        a = make_estimator("ins-wind:airspeed_scale=true").run(f).airspeed_scale
+    assert a is not None
+    assert 0.9 <= a[-1, 1] <= 1.15 and a[-1, 2] < 0.03
+    assert a[:, 4].mean() > 0.9
