@@ -144,7 +144,6 @@ def test_alfa_scale_from_its_own_wind_triangle() -> None:
     scale, with the INS's own heading (8 deg RMS off ArduPilot's), ends at 0.99. It must stay
     within the +-30 % it starts with, settle (its spread below 3 %), and accept the airspeed."""
     from conftest import require_data
-
     from windahrs.io import read_flight
 
     f = read_flight(require_data("alfa", "carbonZ_2018-07-18-15-53-31_1_engine_failure"))
