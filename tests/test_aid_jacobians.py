@@ -15,6 +15,7 @@ import pytest
 
 from windahrs.aid.air_vector import fuse_air_vector
 from windahrs.aid.air_velocity import remember_air
+from windahrs.aid.aoa import fuse_aoa
 from windahrs.aid.drag import fuse_drag
 from windahrs.aid.gnss_vel import fuse_gnss
 from windahrs.aid.gravity import fuse_gravity
@@ -91,9 +92,12 @@ def _h_and_H(st, aid: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # t
             fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, tas, ca, sa, cb, sb, use_v, 0.0)
         elif aid == "tas":
             fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, tas, use_v, 0.0)
+        elif aid == "aoa":
+            fuse_aoa(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, aoa, tas, use_v, 0.0)
         else:
             fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, tas, use_v, 0.0)
-        z = {"air": x[K.X_VAIR : K.X_VAIR + 3].copy(), "tas": np.array([tas]), "sideslip": np.zeros(1)}[aid]
+        z = {"air": x[K.X_VAIR : K.X_VAIR + 3].copy(), "tas": np.array([tas]), "sideslip": np.zeros(1),
+             "aoa": np.array([aoa])}[aid]
     m = len(z)
     dim = int(cfg[K.C_DIM])
     H = np.zeros((m, dim))
@@ -109,7 +113,7 @@ def _h_and_H(st, aid: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # t
 CASES = [
     ("mekf", "gravity"), ("mekf", "mag"), ("mekf-bm", "mag"), ("mekf-air", "air"), ("mekf-air", "tas"),
     ("mekf-air", "sideslip"), ("ins", "gnss"), ("ins", "air"), ("ins", "tas"), ("ins", "sideslip"),
-    ("ins", "mag"), ("ins", "drag"),
+    ("ins", "mag"), ("ins", "drag"), ("mekf-air", "aoa"), ("ins", "aoa"),
 ]  # fmt: skip
 
 

@@ -435,6 +435,7 @@ def test_sample_ulg_mekf_tilt_against_ekf2() -> None:
 # default [mekf-air] failed before too, 61.5 deg off in direction).
 ALFA_SPECS = (
     "ins-wind",
+    "ins-wind:airspeed_scale=true",
     "auto",
     "ins-wind:gyro_noise=0.018:accel_noise=0.18",
     "mekf-air:gyro_noise=0.018:unmeasured_motion_dt=1e9",

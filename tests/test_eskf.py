@@ -359,11 +359,12 @@ def test_heading_only_magnetometer_mode_runs_and_converges() -> None:
     assert np.degrees(np.sqrt(np.mean(err[len(err) // 2 :] ** 2))) < 3.0
 
 
-def test_an_angle_of_attack_vane_alone_is_airspeed_and_synthetic_sideslip() -> None:
-    # A fixed wing with an angle-of-attack vane but no sideslip vane: a sample without a
-    # sideslip angle is a sample without vanes (core step_air: both angles finite), so
-    # every estimator gives exactly what it gives on the pitot-only flight, and the paper's
-    # filter (the air-flow direction needs both vanes) refuses the flight by name.
+def test_an_angle_of_attack_vane_alone_adds_its_angle_to_airspeed_and_synthetic_sideslip() -> None:
+    # A fixed wing with an angle-of-attack vane but no sideslip vane: the airspeed, the angle
+    # of attack alone (windahrs.aid.aoa) and the synthetic sideslip are fused; with
+    # air_mode "airspeed" the vane is not fused (it still turns the sample's air velocity, as
+    # both vanes do, for the wind's first value); the paper's filter (the air-flow direction
+    # needs both vanes) refuses the flight by name.
     fl = simulate(make_scenario("fixedwing", wind=5.0, duration=5.0), np.random.default_rng(9))
     assert fl.air is not None and fl.air.has_vanes
     aoa_only = fl.replace(air=type(fl.air)(t=fl.air.t, tas=fl.air.tas, aoa=fl.air.aoa))
@@ -373,8 +374,11 @@ def test_an_angle_of_attack_vane_alone_is_airspeed_and_synthetic_sideslip() -> N
         est = make_estimator(name)
         one, none, both = est.run(aoa_only), est.run(pitot), est.run(fl)
         assert np.isfinite(one.q_nb).all(), name
-        assert np.array_equal(one.q_nb, none.q_nb), name
-        assert not np.array_equal(one.q_nb, both.q_nb), name  # the vanes do matter
+        assert "aoa" in one.innovations and "aoa" not in none.innovations, name
+        assert not np.array_equal(one.q_nb, none.q_nb), name  # the vane does matter
+        assert not np.array_equal(one.q_nb, both.q_nb), name  # and so do both
+        off = make_estimator(f"{name}:air_mode=airspeed").run(aoa_only)
+        assert "aoa" not in off.innovations and {"tas", "sideslip"} <= set(off.innovations), name
     with pytest.raises(MissingSensorError, match=r"'paper'.*found air data with only one vane \(aoa\)"):
         make_estimator("paper").run(aoa_only)
 

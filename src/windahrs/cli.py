@@ -342,6 +342,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     for spec in specs:  # fail on a bad name or field before any work
         make_estimator(spec)
     check_simulation_size(make_scenario(args.vehicle, wind=args.wind, duration=args.duration, altitude=args.altitude))
+    faults = _faults(args.fault)
     with _runs_bar(args.runs * len(specs), "experiment") as bar:
 
         def step(done: int, total: int) -> None:
@@ -349,7 +350,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
         rows = run_wind_experiment(
             args.vehicle, args.wind, args.duration, args.runs, specs, altitude=args.altitude,
-            seed0=args.seed, progress=step,
+            seed0=args.seed, progress=step, faults=faults,
         )
     if args.json:
         print(json.dumps([r.as_dict() for r in rows], indent=1))
@@ -390,6 +391,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     if fits:
         print("fit: horizontal distance of the fitted constant wind (wind=fit) from the flight's mean true wind, "
               "RMS over runs, and the largest")
+    for r in rows:
+        if r.airspeed_scale is not None and r.airspeed_scale_spread is not None:
+            print(f"{r.filter}: airspeed scale (true / measured) at the end {r.airspeed_scale:.4f} mean over runs, "
+                  f"runs within +-{r.airspeed_scale_spread:.4f}")
+    if faults:
+        print("faults: " + ", ".join(f.spec() for f in faults))
     return 0
 
 
@@ -668,6 +675,10 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     skipped = {k: v for k, v in result.skipped.items() if v}
     if skipped:
         print(f"skipped NaN samples: {skipped}")
+    if result.airspeed_scale is not None:
+        from windahrs.experiments.compare import airspeed_scale_line
+
+        print(airspeed_scale_line(args.filter, result))
     try:
         reference_of(flight)
     except ValueError:
@@ -952,6 +963,9 @@ def _parser() -> argparse.ArgumentParser:
     x.add_argument("--altitude", type=_number, default=None, metavar="H", help="m (vehicle default)")
     x.add_argument("--runs", type=_count, default=5, metavar="N", help="flights (default 5)")
     x.add_argument("--seed", type=_seed, default=0, metavar="N", help="first seed (default 0)")
+    x.add_argument("--fault", action="append", default=None, metavar="KIND:field=value:...",
+                   help="inject a sensor fault into every simulated flight (repeatable; as simulate's), e.g. "
+                   "pitot-scale:start=0:duration=120:scale=0.75 (the pitot reads 25 %% low)")
     x.add_argument("--filters", default=DEFAULT_EXPERIMENT_FILTERS, metavar="A,B,...",
                    help=f"estimator specs (default: {DEFAULT_EXPERIMENT_FILTERS})")
     x.add_argument("--json", action="store_true", help="print JSON instead of a table")

@@ -98,7 +98,10 @@ class Estimate:
     or None (an estimator that keeps no such record); ``windahrs.flags.flag_spans`` turns
     them into time spans with their reasons. repairs: what the edge repaired in the input
     flight before the run (``Flight.repairs``: stream -> kind -> count, see
-    :mod:`windahrs.repair`).
+    :mod:`windahrs.repair`). airspeed_scale: the pitot's scale estimated on line
+    (``airspeed_scale=true``, :mod:`windahrs.aid.airspeed_scale`) at each air sample, (K, 5)
+    rows [t s, scale (true / measured airspeed), its standard deviation, the scale
+    estimator's airspeed innovation m/s, accepted (1) or rejected (0) by its gate], or None.
     """
 
     filter: str
@@ -118,9 +121,12 @@ class Estimate:
     flags: NDArray[np.uint32] | None = None
     cov_index: NDArray[np.int64] | None = None
     repairs: dict[str, dict[str, int]] = field(default_factory=dict)
+    airspeed_scale: F64 | None = None
 
     def __post_init__(self) -> None:
         n = len(self.t)
+        if self.airspeed_scale is not None and (self.airspeed_scale.ndim != 2 or self.airspeed_scale.shape[1] != 5):
+            raise FlightError("estimate.airspeed_scale", "shape (K, 5)", str(self.airspeed_scale.shape))
         if self.cov_index is not None:
             ci = self.cov_index
             if ci.ndim != 1 or (len(ci) and (ci[0] < 0 or ci[-1] >= n or np.any(np.diff(ci) <= 0))):
@@ -216,7 +222,7 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
         f.attrs["filter"] = est.filter
         f.attrs["params"] = est.params
         f.attrs["state_labels"] = ",".join(est.state_labels)
-        for name in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index"):
+        for name in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index", "airspeed_scale"):
             v = getattr(est, name)
             if v is not None:
                 f.create_dataset(name, data=v, compression="gzip", compression_opts=1, shuffle=True)
@@ -241,7 +247,7 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
     """Read an Estimate written by :func:`save_estimate` (StoreError on a bad file)."""
     with read_errors(path, "unreadable estimate"), open_h5(path, ESTIMATE_FORMAT, (ESTIMATE_VERSION,)) as f:
         labels = str(f.attrs["state_labels"])
-        names = ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index")
+        names = ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index", "airspeed_scale")
         arrays = {k: f[k][()] for k in names if k in f}
         inns = {
             k: read_record(g, Innovations, f"{path}:/innovations/{k}")

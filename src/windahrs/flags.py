@@ -84,7 +84,7 @@ _REJECTED = {
     "accel_rejected": ("accel",),
     "mag_rejected": ("mag",),
     "gnss_rejected": ("gnss",),
-    "air_rejected": ("air", "tas", "sideslip", "drag"),
+    "air_rejected": ("air", "tas", "sideslip", "aoa", "drag"),
 }
 #: A stream absent for at least this long, s, is flagged whatever its rate (PX4 EKF2's
 #: GNSS_MAX_INTERVAL, 0.5 s, the longest it waits for a GNSS sample before calling it late).

@@ -247,9 +247,9 @@ class AirDataStream:
     ``alpha = atan2(w, u)``, ``beta = asin(v / |V|)``), or None when no vanes exist.
     One vane alone (an angle-of-attack vane without a sideslip vane, or the reverse) is
     accepted: the missing angle is stored as NaN. A NaN angle does not make the sample
-    missing (the airspeed stays a measurement); estimators use the vanes of a sample only
-    when both angles are finite, otherwise airspeed (and a synthetic zero sideslip) as
-    without vanes.
+    missing (the airspeed stays a measurement); estimators fuse the air-data vector only
+    when both angles are finite, otherwise the airspeed, an angle of attack alone
+    (:mod:`windahrs.aid.aoa`) and a synthetic zero sideslip.
     """
 
     t: F64

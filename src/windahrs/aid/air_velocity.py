@@ -64,13 +64,16 @@ def _air_rows(cfg, x, work, sup, use_state_v, g0, g1, g2, row):
 @njit(inline="always", **_JIT)
 def remember_air(x, flags, tas, aoa, beta):
     """The sample's air-relative velocity into X_VAIR: tas m/s, aoa and sideslip rad
-    (NaN: no vanes, the air then taken as along the body x axis). Returns whether vanes
-    were present and cos/sin of aoa and sideslip (0 without vanes)."""
+    (NaN: no vanes, the air then taken as along the body x axis; an angle of attack alone:
+    in the body x-z plane). Returns whether both vanes were present and cos/sin of aoa and
+    sideslip (0 without both vanes)."""
     vanes = math.isfinite(aoa) and math.isfinite(beta)
     ca = cb = sa = sb = 0.0
     if vanes:
         ca, sa, cb, sb = math.cos(aoa), math.sin(aoa), math.cos(beta), math.sin(beta)
         x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = tas * (ca * cb), tas * sb, tas * (sa * cb)
+    elif math.isfinite(aoa):
+        x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = tas * math.cos(aoa), 0.0, tas * math.sin(aoa)
     else:
         x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = tas, 0.0, 0.0
     flags[S_VAIR] = 1

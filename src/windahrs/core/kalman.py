@@ -41,6 +41,7 @@ from windahrs.core.layout import (
     EVENT_LOGS,
     F64,
     I64,
+    INN_ASPD,
     INN_IMU,
     INN_RESET,
     L_CNT,
@@ -161,6 +162,16 @@ def read_held(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
     o, c = int(cfg[C_OFF + INN_IMU]), int(flags[L_CNT + INN_IMU])
     rows = inn[o : o + c]
     return {"imu": np.column_stack([rows[:, :3], rows[:, 4]])} if c else {}
+
+
+def read_airspeed_scale(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) -> F64 | None:
+    """The airspeed scale estimator's log (windahrs.aid.airspeed_scale) as
+    ``Estimate.airspeed_scale``: (K, 5) rows [t s, scale, its standard deviation, airspeed
+    innovation m/s, accepted]; None when it did not run."""
+    o, c = int(cfg[C_OFF + INN_ASPD]), int(flags[L_CNT + INN_ASPD])
+    if c == 0:
+        return None
+    return np.column_stack([inn[o : o + c, :4], acc[o : o + c].astype(np.float64)])
 
 
 @njit(**_JIT)

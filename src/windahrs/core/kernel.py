@@ -25,6 +25,12 @@ from windahrs.aid.air_vector import (
 from windahrs.aid.air_velocity import (
     remember_air,
 )
+from windahrs.aid.airspeed_scale import (
+    airspeed_scale_step,
+)
+from windahrs.aid.aoa import (
+    fuse_aoa,
+)
 from windahrs.aid.drag import (
     fuse_drag,
 )
@@ -48,7 +54,7 @@ from windahrs.aid.tas import (
 )
 from windahrs.core.events import sample_ok
 from windahrs.core.imu_screen import screen_imu
-from windahrs.core.kalman import grown_logs, log_layout, read_held, read_logs, read_resets
+from windahrs.core.kalman import grown_logs, log_layout, read_airspeed_scale, read_held, read_logs, read_resets
 from windahrs.core.layout import (
     _JIT,
     AIR_AIRSPEED,
@@ -57,6 +63,7 @@ from windahrs.core.layout import (
     AIR_VECTOR,
     C_ADD,
     C_AIR,
+    C_ASC,
     C_AVAR,
     C_CAP,
     C_COMP,
@@ -104,6 +111,11 @@ from windahrs.core.layout import (
     R_ACC_LP,
     R_ACC_RANGE,
     R_ACC_VAR,
+    R_ASC_BETA_VAR,
+    R_ASC_KN2,
+    R_ASC_P0,
+    R_ASC_TAS_VAR,
+    R_ASC_WN2,
     R_BETA_VAR,
     R_DRAG_KX,
     R_DRAG_KY,
@@ -179,6 +191,7 @@ from windahrs.core.layout import (
     X_TOK,
     X_TWIN0,
     X_V,
+    X_VAIR,
     X_W,
     X_WLAST,
     KernelState,
@@ -420,7 +433,9 @@ def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
     """An air-data sample: tas m/s (finite), aoa and sideslip rad (NaN: no vanes), at t s,
     to its aid sources: the air-data vector with both vanes (air_mode "vector", or "auto"),
-    else true airspeed and (synthetic_sideslip) a zero sideslip."""
+    else true airspeed, the angle of attack of a vane without a sideslip vane ("vector" or
+    "auto") and (synthetic_sideslip) a zero sideslip. With airspeed_scale, the airspeed is
+    first corrected by the scale estimated on line (:mod:`windahrs.aid.airspeed_scale`)."""
     vanes, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
     kind = cfg[C_KIND]
     if flags[S_INIT] == 0 or kind == KIND_MEKF or cfg[C_AIR] == AIR_OFF:
@@ -431,15 +446,25 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
             return
         extra = prm[R_GNSS_VAR]
     use_v = cfg[C_IV] >= 0
+    extra_tas = extra  # the airspeed's added variance (the scale's too, when estimated)
+    if cfg[C_ASC] == 1:
+        bv = beta if cfg[C_AIR] != AIR_AIRSPEED else np.nan  # the sideslip vane's, when fused
+        tc, var_scale = airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, bv, cfg[C_SYN] == 1, use_v)
+        f = tc / tas if tas > 0 else 1.0
+        x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = f * x[X_VAIR], f * x[X_VAIR + 1], f * x[X_VAIR + 2]
+        tas = tc
+        extra_tas = extra + var_scale
     if flags[S_WPEND] == 1:
         init_wind(x, flags, use_v, vanes)
     mode = cfg[C_AIR]
     if mode == AIR_AUTO:
         mode = AIR_VECTOR if vanes else AIR_AIRSPEED
     if mode == AIR_VECTOR and vanes:
-        fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra)
+        fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra_tas)
         return
-    fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
+    fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra_tas)
+    if cfg[C_AIR] != AIR_AIRSPEED and np.isfinite(aoa):  # one vane: its angle of attack alone
+        fuse_aoa(cfg, prm, x, flags, P, work, sup, inn, acc, t, aoa, tas, use_v, extra)
     if cfg[C_SYN] == 1:  # at the state after the airspeed update
         fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
 
@@ -649,6 +674,7 @@ def make_state(
     cfg[C_AIR] = _AIR[p.air_mode]
     cfg[C_SYN] = int(p.synthetic_sideslip)
     cfg[C_DRAG] = int(p.drag and kind == "ins-wind")
+    cfg[C_ASC] = int(p.airspeed_scale and kind != "mekf")
     cfg[C_AVAR] = int(p.accel_noise_online and p.accel_lowpass > 0)
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
     cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
@@ -716,6 +742,11 @@ def make_state(
     prm[R_GYRO_RANGE] = p.gyro_range
     prm[R_ACC_RANGE] = p.accel_range
     prm[R_SPIKE_GATE] = p.imu_spike_gate
+    prm[R_ASC_P0] = p.airspeed_scale_sigma**2
+    prm[R_ASC_KN2] = p.airspeed_scale_noise**2
+    prm[R_ASC_WN2] = p.airspeed_scale_wind_noise**2
+    prm[R_ASC_TAS_VAR] = p.airspeed_scale_tas_sigma**2
+    prm[R_ASC_BETA_VAR] = p.airspeed_scale_beta_sigma**2
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -939,6 +970,7 @@ class CompiledEstimator(Estimator):
             params=repr(run.params),
             resets=_resets(st),
             alerts=read_held(st.cfg, st.flags, st.inn),
+            airspeed_scale=read_airspeed_scale(st.cfg, st.flags, st.inn, st.acc),
         ), flight)
 
     def streamer(

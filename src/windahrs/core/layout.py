@@ -58,6 +58,7 @@ AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
     ("tas", "air", 1, ""),
     ("sideslip", "air", 1, ""),
     ("drag", "imu", 2, "xy"),
+    ("aoa", "air", 1, ""),  # an angle-of-attack vane without a sideslip vane (aid.aoa)
     # not a sensor: the resets of the state to a sensor that its gate kept out too long
     # (rows: the sensor's index in this table, the size of the reset, how long it was out)
     ("reset", "imu", 3, ""),
@@ -65,6 +66,10 @@ AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
     # the change of the angular rate rad/s and of the specific force m/s^2 since the last
     # propagated sample, the reason: 1 beyond the sensor's range, 2 a spike)
     ("imu", "imu", 3, ""),
+    # not a sensor: the airspeed scale estimator's state after each air sample
+    # (windahrs.aid.airspeed_scale; rows: the scale true/measured, its standard deviation,
+    # the estimator's airspeed innovation m/s; nis and accepted are its airspeed's)
+    ("aspd", "air", 3, ""),
 )
 SENSORS = tuple(a[0] for a in AID_LOGS)
 SENSOR_STREAMS = tuple(a[1] for a in AID_LOGS)
@@ -75,10 +80,12 @@ N_SENSORS = len(SENSORS)
 INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SENSORS.index("gnss")
 INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")
 INN_DRAG = SENSORS.index("drag")
+INN_AOA = SENSORS.index("aoa")
+INN_ASPD = SENSORS.index("aspd")
 INN_RESET = SENSORS.index("reset")
 INN_IMU = SENSORS.index("imu")
 #: The logs that are not aid sources' innovations (read by windahrs.core.kalman.read_events).
-EVENT_LOGS = (INN_RESET, INN_IMU)
+EVENT_LOGS = (INN_RESET, INN_IMU, INN_ASPD)
 
 # cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
 C_KIND = 0  # KIND_*
@@ -105,7 +112,8 @@ C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
 C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
 C_AVAR = 22  # 1: add the on-line variance X_AVAR to the gravity measurement's noise
 C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
-C_OFF = 24  # (N_SENSORS,) first row of each sensor's log
+C_ASC = 24  # 1: estimate the airspeed scale on line (windahrs.aid.airspeed_scale)
+C_OFF = 25  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
@@ -159,7 +167,12 @@ R_GNSS_TAU = 56  # gnss_timing_sigma, s
 R_GYRO_RANGE = 57  # gyro_range, rad/s
 R_ACC_RANGE = 58  # accel_range, m/s^2
 R_SPIKE_GATE = 59  # imu_spike_gate (0: off)
-N_PRM = 60
+R_ASC_P0 = 60  # airspeed_scale_sigma^2: initial variance of the inverse scale
+R_ASC_KN2 = 61  # airspeed_scale_noise^2, 1/s^2/Hz
+R_ASC_WN2 = 62  # airspeed_scale_wind_noise^2, (m/s^2)^2/Hz
+R_ASC_TAS_VAR = 63  # airspeed_scale_tas_sigma^2, (m/s)^2
+R_ASC_BETA_VAR = 64  # airspeed_scale_beta_sigma^2, rad^2
+N_PRM = 65
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -193,7 +206,10 @@ X_SW2 = X_AVAR + 1  # mean square of the angular rate's sample-to-sample change,
 X_SF2 = X_AVAR + 2  # ... of the specific force's, (m/s^2)^2
 X_PEND = X_AVAR + 3  # (6,) the held sample's excess over the propagated one: w (rad/s), f (m/s^2)
 X_DTPEND = X_AVAR + 9  # its step, s
-N_X = X_AVAR + 10
+X_ASC = X_AVAR + 10  # (3,) airspeed scale estimator: wind N, E m/s, inverse scale (measured / true)
+X_ASCP = X_AVAR + 13  # (9,) its covariance, row-major
+X_TASC = X_AVAR + 22  # time of its last update, s
+N_X = X_AVAR + 23
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -209,7 +225,7 @@ S_SEQ = 9  # sensors that have logged so far
 S_FBAR = 10  # the low-passed specific force is set (the gravity aid source's, or the INS's)
 S_MBAR = 11  # the low-passed magnetic field is set
 S_WIN = 12  # the initialisation window has a sample
-# (13: free)
+S_ASC = 13  # the airspeed scale estimator is initialised
 S_AINS = 14  # X_AINS is set
 K_SKIP = 15  # (4,) NaN samples skipped: imu, mag, gnss, air
 S_NHELD = 19  # the last IMU sample's held parts (imu_screen): 1 its angular rate, 2 its specific force, 3 both

@@ -291,9 +291,24 @@ class CompareResult:
         extra = self.alignment.fields()
         return [{**r.as_dict(), **extra} for r in self.rows]
 
+    def scale_lines(self) -> list[str]:
+        """One line per filter that estimated the airspeed scale on line (``airspeed_scale``)."""
+        return [airspeed_scale_line(spec, est) for spec, est in self.estimates if est.airspeed_scale is not None]
+
     def __str__(self) -> str:
         text = self.alignment.text
-        return self.table() if text is None else f"{text}\n{self.table()}"
+        body = "\n".join([self.table(), *self.scale_lines()])
+        return body if text is None else f"{text}\n{body}"
+
+
+def airspeed_scale_line(name: str, est: Estimate) -> str:
+    """``name: airspeed scale ...``: the last estimate of the pitot's scale (true / measured
+    airspeed), its standard deviation and the share of airspeed samples its gate accepted."""
+    a = est.airspeed_scale
+    if a is None or not len(a):
+        return f"{name}: airspeed scale not estimated"
+    return (f"{name}: airspeed scale (true / measured) {a[-1, 1]:.4f} +- {a[-1, 2]:.4f} at t = {a[-1, 0]:.1f} s "
+            f"({100 * float(np.mean(a[:, 4])):.0f} % of {len(a)} airspeed samples accepted)")
 
 
 def compare(

@@ -14,6 +14,7 @@ import numpy as np
 
 from windahrs.filters.registry import make_estimator
 from windahrs.metrics import WIND_FROM_S, Score, WindErrors, score, wind_errors
+from windahrs.sim.faults import Fault, inject
 from windahrs.sim.scenario import make_scenario, simulate
 from windahrs.windfit import WindFit
 
@@ -43,6 +44,10 @@ class ExperimentRow:
     wind_direction_max_deg: float | None = None
     wind_fit_ms: float | None = None
     wind_fit_max_ms: float | None = None
+    #: the airspeed scale estimated on line (``airspeed_scale=true``) at the end of each run,
+    #: mean over runs and the largest deviation of a run from that mean; None without it
+    airspeed_scale: float | None = None
+    airspeed_scale_spread: float | None = None
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -58,6 +63,8 @@ class ExperimentRow:
             "wind_direction_max_deg": self.wind_direction_max_deg,
             "wind_fit_ms": self.wind_fit_ms,
             "wind_fit_max_ms": self.wind_fit_max_ms,
+            "airspeed_scale": self.airspeed_scale,
+            "airspeed_scale_spread": self.airspeed_scale_spread,
         }
 
 
@@ -75,8 +82,10 @@ def run_wind_experiment(
     altitude: float | None = None,
     seed0: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    faults: Sequence[Fault] = (),
 ) -> list[ExperimentRow]:
-    """Simulate ``runs`` flights (seeds ``seed0 ...``) and score each estimator spec on each.
+    """Simulate ``runs`` flights (seeds ``seed0 ...``), apply ``faults`` to each (seeded
+    alike; :func:`windahrs.sim.faults.inject`) and score each estimator spec on each.
 
     Raises ValueError for a bad spec before any simulation. ``progress(done, total)`` is
     called after each estimator run.
@@ -88,12 +97,15 @@ def run_wind_experiment(
     scores: dict[str, list[Score]] = {s: [] for s in specs}
     winds: dict[str, list[WindErrors]] = {s: [] for s in specs}
     fits: dict[str, list[float]] = {s: [] for s in specs}
+    scales: dict[str, list[float]] = {s: [] for s in specs}
     seconds = dict.fromkeys(specs, 0.0)
     import time
 
     done, total = 0, runs * len(specs)
     for r in range(runs):
         flight = simulate(scenario, np.random.default_rng(seed0 + r))
+        if faults:
+            flight = inject(flight, faults, seed=seed0 + r)
         for spec, est in zip(specs, estimators, strict=True):
             t0 = time.perf_counter()
             result = est.run(flight)
@@ -104,12 +116,14 @@ def run_wind_experiment(
             fit = WindFit.from_meta(result.meta)
             if fit is not None and flight.truth is not None and flight.truth.wind_n is not None:
                 fits[spec].append(float(np.linalg.norm(fit.wind_n[:2] - flight.truth.wind_n[:, :2].mean(axis=0))))
+            if result.airspeed_scale is not None:
+                scales[spec].append(float(result.airspeed_scale[-1, 1]))
             done += 1
             if progress is not None:
                 progress(done, total)
     rows = []
     for spec in specs:
-        sc, wd, wf = scores[spec], winds[spec], fits[spec]
+        sc, wd, wf, ks = scores[spec], winds[spec], fits[spec], scales[spec]
         rows.append(
             ExperimentRow(
                 filter=spec,
@@ -124,6 +138,8 @@ def run_wind_experiment(
                 wind_direction_max_deg=max(abs(w.direction_deg) for w in wd) if wd else None,
                 wind_fit_ms=_rms(wf) if wf else None,
                 wind_fit_max_ms=max(wf) if wf else None,
+                airspeed_scale=float(np.mean(ks)) if ks else None,
+                airspeed_scale_spread=float(np.max(np.abs(np.subtract(ks, np.mean(ks))))) if ks else None,
             )
         )
     return rows

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from windahrs.aid import air_vector, gravity, mag, sideslip, tas
+from windahrs.aid import air_vector, airspeed_scale, aoa, gravity, mag, sideslip, tas
 from windahrs.core import imu_screen
 from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator, Kind
@@ -47,4 +47,5 @@ class Ekf10(Ekf7):
     kind: ClassVar[Kind] = "mekf-air"
     requires = frozenset({"imu", "air", "gnss"})
     default_params = EskfParams(accel_compensation="airspeed")
-    parts = (*Ekf7.parts, process.WIND_PARAMS, air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, ("gnss_sigma",))
+    parts = (*Ekf7.parts, process.WIND_PARAMS, air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS,
+             airspeed_scale.PARAMS, ("gnss_sigma",))

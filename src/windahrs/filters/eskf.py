@@ -29,7 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from windahrs.aid import air_vector, drag, gnss_vel, gravity, mag, sideslip, tas
+from windahrs.aid import air_vector, airspeed_scale, aoa, drag, gnss_vel, gravity, mag, sideslip, tas
 from windahrs.core import imu_screen
 from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator
@@ -38,7 +38,7 @@ from windahrs.filters.params import EskfParams
 __all__ = ["MEKF_FIELD", "InsDrag", "InsWind", "Mekf", "MekfAir"]
 
 #: The parameters of the air-data aid sources (the vector, airspeed, synthetic sideslip).
-_AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS)
+_AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS, airspeed_scale.PARAMS)
 
 
 #: [mekf]'s defaults for a 9-D AHRS in the field (handheld, robots, vehicles; BROAD-type

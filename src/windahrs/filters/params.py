@@ -50,7 +50,7 @@ _AP_DT = 0.01
 MAX_MAGNITUDE = 1e50
 
 #: Fields that are angles in rad: at most pi (an attitude or flow angle is off by 180 deg at most).
-ANGLE_FIELDS = frozenset({"init_att", "vane_sigma", "sideslip_sigma", "mag_dip_gate"})
+ANGLE_FIELDS = frozenset({"init_att", "vane_sigma", "sideslip_sigma", "mag_dip_gate", "airspeed_scale_beta_sigma"})
 
 _GYRO_RANGE = 2000.0 * DEG  # rad/s: +-2000 deg/s, the widest full scale of MEMS gyros (MPU-9250, BMI088)
 _ACCEL_RANGE = 16.0 * G0  # m/s^2: +-16 g, the widest common MEMS accelerometer full scale (MPU-9250)
@@ -66,8 +66,10 @@ FIELD_MAX: dict[str, float] = {
     **dict.fromkeys(("accel_noise", "accel_bias_noise", "accel_sigma", "init_accel_bias", "drag_sigma"),
                     _ACCEL_RANGE),
     **dict.fromkeys(("mag_sigma", "init_mag_bias", "mag_bias_noise"), _MAG_RANGE),
-    **dict.fromkeys(("gnss_sigma", "tas_sigma", "init_v", "init_wind", "wind_noise", "wind_noise_vertical"),
-                    _SPEED_OF_SOUND),
+    **dict.fromkeys(("gnss_sigma", "tas_sigma", "init_v", "init_wind", "wind_noise", "wind_noise_vertical",
+                     "airspeed_scale_tas_sigma", "airspeed_scale_wind_noise"), _SPEED_OF_SOUND),
+    # the inverse scale's spread and random walk: a pitot reads from nothing to a few times the airspeed
+    **dict.fromkeys(("airspeed_scale_sigma", "airspeed_scale_noise"), 1.0),
 }
 
 
@@ -141,7 +143,20 @@ class EskfParams:
     GNSS velocity: gnss_sigma m/s per axis. Air data: air_mode "auto" (the vector when the
     flight has vanes, else airspeed and synthetic sideslip), "vector", "airspeed" or "off";
     tas_sigma m/s, vane_sigma rad, sideslip_sigma rad (synthetic zero sideslip;
-    synthetic_sideslip switches it).
+    synthetic_sideslip switches it). A flight with an angle-of-attack vane and no sideslip
+    vane fuses the airspeed and the angle of attack alone (:mod:`windahrs.aid.aoa`, with
+    vane_sigma; "auto" and "vector").
+
+    Airspeed scale ([mekf-air], [ins-wind], [ekf10]; :mod:`windahrs.aid.airspeed_scale`):
+    airspeed_scale switches a small EKF beside the filter, as PX4's airspeed selector runs,
+    which estimates the pitot's scale (true / measured airspeed) with its own horizontal
+    wind, and the filter fuses the airspeed it corrects. airspeed_scale_sigma: the initial
+    standard deviation of the inverse scale (measured / true) about 1 (0.3: a pitot up to
+    30 % off either way); airspeed_scale_noise 1/s/sqrt(Hz), its random walk (PX4
+    ASPD_SCALE_NSD, 1e-4); airspeed_scale_wind_noise m/s^2/sqrt(Hz), its wind's (PX4
+    ASPD_WIND_NSD, 0.1); airspeed_scale_tas_sigma m/s, its airspeed noise (PX4
+    ASPD_TAS_NOISE, 1.4: turbulence included); airspeed_scale_beta_sigma rad, its sideslip
+    noise (PX4 ASPD_BETA_NOISE, 0.15).
 
     Multirotor drag ([ins-wind], [ins-drag]; PX4 EKF2's drag fusion): drag switches the
     fusion of the accelerometer's body x and y as ``f_xy = -drag_mcoef u_xy - air_density
@@ -242,6 +257,12 @@ class EskfParams:
     vane_sigma: float = 1.0 * DEG
     sideslip_sigma: float = 0.3
     synthetic_sideslip: bool = True
+    airspeed_scale: bool = False
+    airspeed_scale_sigma: float = 0.3
+    airspeed_scale_noise: float = 1e-4
+    airspeed_scale_wind_noise: float = 0.5
+    airspeed_scale_tas_sigma: float = 1.4
+    airspeed_scale_beta_sigma: float = 0.15
     gate_accel: float = 5.0
     gate_mag: float = 5.0
     gate_gnss: float = 5.0
@@ -288,7 +309,8 @@ class EskfParams:
         for name in ("gyro_noise", "mag_sigma", "gnss_sigma", "tas_sigma", "vane_sigma", "accel_sigma", "drag_sigma"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
-        for name in ("init_att", "init_bias", "init_v", "init_wind", "init_accel_bias"):
+        for name in ("init_att", "init_bias", "init_v", "init_wind", "init_accel_bias", "airspeed_scale_sigma",
+                     "airspeed_scale_tas_sigma", "airspeed_scale_beta_sigma"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
 
@@ -352,6 +374,11 @@ PX4_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
     "EKF2_BCOEF_X": ("drag_bcoef_x", float),
     "EKF2_BCOEF_Y": ("drag_bcoef_y", float),
     "EKF2_DRAG_NOISE": ("drag_sigma", math.sqrt),  # a variance, (m/s^2)^2
+    # the airspeed selector's wind estimator (windahrs.aid.airspeed_scale)
+    "ASPD_SCALE_NSD": ("airspeed_scale_noise", float),
+    "ASPD_WIND_NSD": ("airspeed_scale_wind_noise", float),
+    "ASPD_TAS_NOISE": ("airspeed_scale_tas_sigma", float),
+    "ASPD_BETA_NOISE": ("airspeed_scale_beta_sigma", float),
 }
 
 #: ArduPilot EKF3 parameter -> (our field, conversion). Gates are in percent of sigma.

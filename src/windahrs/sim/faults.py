@@ -69,6 +69,7 @@ __all__ = [
     "MagMagnet",
     "OutOfOrder",
     "PitotBlockage",
+    "PitotScale",
     "RawFlight",
     "VaneFailure",
     "VibrationBurst",
@@ -609,6 +610,26 @@ class PitotBlockage(Fault):
 
 
 @dataclass(frozen=True)
+class PitotScale(Fault):
+    """A pitot whose airspeed is off by a constant factor: the reading is ``scale`` times
+    the true airspeed (a port in the propeller's or the fuselage's flow, a bent tube, a
+    transducer calibrated for another installation; PX4 estimates the inverse as ASPD_SCALE,
+    ArduPilot calibrates ARSPD_RATIO). scale: > 0 (0.75: the pitot reads 25 % low)."""
+
+    scale: float = 0.75
+    kind: ClassVar[str] = "pitot-scale"
+    needs: ClassVar[str] = "air"
+
+    def _check(self) -> None:
+        if not (0.0 < self.scale <= 10.0):
+            raise self._bad("scale", "a factor in (0, 10]")
+
+    def _apply(self, raw: RawFlight, s: dict[str, F64], rng: np.random.Generator) -> None:
+        m = self.mask(s["t"])
+        s["tas"][m] = self.scale * s["tas"][m]
+
+
+@dataclass(frozen=True)
 class VaneFailure(Fault):
     """A vane fails. vane: "aoa", "sideslip" or "both"; mode "stuck": it holds its last angle
     before the span, "nan": it reads nothing (NaN angle; the airspeed stays)."""
@@ -754,7 +775,7 @@ FAULTS: dict[str, type[Fault]] = {
     c.kind: c
     for c in (
         ImuDropout, ImuNaN, GyroSpike, AccelSpike, ImuStuck, GyroSaturation, AccelSaturation, VibrationBurst,
-        MagMagnet, MagDrift, MagAbsent, PitotBlockage, VaneFailure, GnssOutage, GnssJump,
+        MagMagnet, MagDrift, MagAbsent, PitotBlockage, PitotScale, VaneFailure, GnssOutage, GnssJump,
         ImuJitter, DuplicateStamps, OutOfOrder,
     )
 }

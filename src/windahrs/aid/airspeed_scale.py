@@ -1,0 +1,166 @@
+"""The airspeed scale, estimated on line: a small EKF beside the filter, as PX4's airspeed
+selector runs one (``AirspeedValidator``'s ``WindEstimator``, src/lib/wind_estimator), causal,
+run at every air sample before the air-data aid sources.
+
+A pitot reads the dynamic pressure at its own port: its position error, a bent or partly
+blocked tube and the calibration of the transducer make the airspeed it reports a few to
+30 % off the true airspeed (PX4 ASPD_SCALE, ArduPilot ARSPD_RATIO). Fused as if right, such
+an airspeed bends the wind: the wind then takes up the missing airspeed along the heading.
+The scale is observable from the wind triangle as the vehicle turns: the ground velocity
+less a constant wind has one length at every heading only with the right scale.
+
+States: the horizontal wind N, E (m/s) and the inverse scale ``k = measured / true``
+airspeed (PX4's ``tas_scale`` state, in which the measurement is linear):
+
+* prediction: random walks, ``airspeed_scale_wind_noise`` m/s^2/sqrt(Hz) (PX4
+  ASPD_WIND_NSD, 0.1) and ``airspeed_scale_noise`` 1/s/sqrt(Hz) (ASPD_SCALE_NSD, 1e-4);
+* airspeed: ``tas_m = k |v_n - W|`` (vertical wind 0; v_n the filter's velocity, or the
+  last GNSS velocity for [mekf-air]), R = airspeed_scale_tas_sigma^2 (ASPD_TAS_NOISE,
+  1.4 m/s: the wind here is a slow random walk, so turbulence is measurement noise), gated
+  at :data:`TAS_GATE` sigmas (ASPD_TAS_GATE);
+* sideslip (with synthetic_sideslip, or the vane's when the flight has one): ``beta =
+  V_y / V_x`` of ``C_bn (v_n - W)`` at the filter's attitude, R =
+  airspeed_scale_beta_sigma^2 (ASPD_BETA_NOISE, 0.15 rad), gated at :data:`BETA_GATE`
+  (ASPD_BETA_GATE): it ties the wind to the heading, so that the airspeed's length fixes
+  the scale;
+* initial state: k = 1 with the standard deviation airspeed_scale_sigma (0.3: a pitot 30 %
+  off either way), the wind from the first sample's triangle with the spread the scale's
+  uncertainty gives it along the heading (``W = v - C_nb V_air / k``: ``dW/dk = C_nb V_air``)
+  plus the airspeed's and the sideslip's.
+
+The filter then fuses ``tas_m / k`` (and the air-data vector scaled alike), its variance
+increased by the scale's, ``(tas_m / k)^2 var(k) / k^2``, so a scale still uncertain does not
+bend the filter's wind. Each air sample logs the scale ``1 / k``, its standard deviation and
+the airspeed's innovation in the ``"aspd"`` log (``Estimate.airspeed_scale``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from windahrs.core.kalman import (
+    _log,
+)
+from windahrs.core.layout import (
+    _JIT,
+    INN_ASPD,
+    R_ASC_BETA_VAR,
+    R_ASC_KN2,
+    R_ASC_P0,
+    R_ASC_TAS_VAR,
+    R_ASC_WN2,
+    S_ASC,
+    W_NU,
+    X_ASC,
+    X_ASCP,
+    X_Q,
+    X_TASC,
+    X_V,
+    X_VAIR,
+    X_VGNSS,
+)
+from windahrs.core.quat import (
+    _dcm9,
+)
+
+#: The parameters of this estimator (fields of :class:`windahrs.filters.params.EskfParams`).
+PARAMS = (
+    "airspeed_scale",
+    "airspeed_scale_sigma",
+    "airspeed_scale_noise",
+    "airspeed_scale_wind_noise",
+    "airspeed_scale_tas_sigma",
+    "airspeed_scale_beta_sigma",
+)
+
+#: Gate of its airspeed, sigmas: PX4 ASPD_TAS_GATE (4).
+TAS_GATE = 4.0
+#: Gate of its sideslip, sigmas: PX4 ASPD_BETA_GATE (1).
+BETA_GATE = 1.0
+
+
+@njit(**_JIT)
+def _update(x, H0, H1, H2, nu, r, gate):
+    """One scalar update of the 3-state estimator; H = (H0, H1, H2). Returns
+    (accepted, nis)."""
+    P = x[X_ASCP : X_ASCP + 9]
+    ph0 = P[0] * H0 + P[1] * H1 + P[2] * H2  # P H^T
+    ph1 = P[3] * H0 + P[4] * H1 + P[5] * H2
+    ph2 = P[6] * H0 + P[7] * H1 + P[8] * H2
+    s = H0 * ph0 + H1 * ph1 + H2 * ph2 + r
+    nis = nu * nu / s
+    if nis > gate * gate:
+        return False, nis
+    x[X_ASC] += ph0 / s * nu
+    x[X_ASC + 1] += ph1 / s * nu
+    x[X_ASC + 2] += ph2 / s * nu
+    # P <- P - K S K^T = P - (P H^T)(P H^T)^T / s: symmetric by construction (PX4's
+    # WindEstimator updates its 3x3 P in this form too)
+    ph = (ph0, ph1, ph2)
+    for i in range(3):
+        for j in range(3):
+            P[3 * i + j] -= ph[i] * ph[j] / s
+    return True, nis
+
+
+@njit(**_JIT)
+def _init(prm, x, flags, c, vn, ve, tas, t):
+    """Initialise from the sample's air velocity (X_VAIR, scale 1) at the attitude c (C_nb
+    row-major) and the ground velocity vn, ve m/s."""
+    ax, ay, az = x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2]
+    an = c[0] * ax + c[1] * ay + c[2] * az
+    ae = c[3] * ax + c[4] * ay + c[5] * az
+    x[X_ASC], x[X_ASC + 1], x[X_ASC + 2] = vn - an, ve - ae, 1.0
+    pk = prm[R_ASC_P0]
+    own = prm[R_ASC_TAS_VAR] + tas * tas * prm[R_ASC_BETA_VAR]
+    P = x[X_ASCP : X_ASCP + 9]
+    P[0], P[1], P[3], P[4] = an * an * pk + own, an * ae * pk, an * ae * pk, ae * ae * pk + own
+    P[2], P[6], P[5], P[7] = an * pk, an * pk, ae * pk, ae * pk
+    P[8] = pk
+    x[X_TASC] = t
+    flags[S_ASC] = 1
+
+
+@njit(**_JIT)
+def airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, beta, syn, use_v):
+    """The estimator at an air sample: tas m/s measured, beta rad the sideslip vane's (NaN:
+    none; syn: fuse a zero sideslip then), at t s; X_VAIR holds the sample's air velocity
+    at scale 1. Returns (the airspeed corrected, tas / k, m/s; the variance its scale adds
+    (m/s)^2); logs the scale in the "aspd" log."""
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    vv = X_V if use_v else X_VGNSS
+    vn, ve, vd = x[vv], x[vv + 1], x[vv + 2]
+    if flags[S_ASC] == 0:
+        _init(prm, x, flags, c, vn, ve, tas, t)
+    P = x[X_ASCP : X_ASCP + 9]
+    dt = t - x[X_TASC]
+    if dt > 0:
+        P[0] += prm[R_ASC_WN2] * dt
+        P[4] += prm[R_ASC_WN2] * dt
+        P[8] += prm[R_ASC_KN2] * dt
+        x[X_TASC] = t
+    # airspeed: tas = k |v - W|
+    un, ue = vn - x[X_ASC], ve - x[X_ASC + 1]
+    n = max(math.sqrt(un * un + ue * ue + vd * vd), 1e-3)
+    k = x[X_ASC + 2]
+    nu_tas = tas - k * n
+    ok, nis = _update(x, -k * un / n, -k * ue / n, n, nu_tas, prm[R_ASC_TAS_VAR], TAS_GATE)
+    # sideslip: beta = V_y / V_x of C_bn (v - W)
+    if syn or math.isfinite(beta):
+        un, ue = vn - x[X_ASC], ve - x[X_ASC + 1]
+        ux = c[0] * un + c[3] * ue + c[6] * vd
+        uy = c[1] * un + c[4] * ue + c[7] * vd
+        if ux > 1.0:  # flying forward through the air
+            b = beta if math.isfinite(beta) else 0.0
+            h0 = -(c[1] / ux - uy * c[0] / (ux * ux))
+            h1 = -(c[4] / ux - uy * c[3] / (ux * ux))
+            _update(x, h0, h1, 0.0, b - uy / ux, prm[R_ASC_BETA_VAR], BETA_GATE)
+    k = max(x[X_ASC + 2], 0.1)  # (a pitot reading a tenth of the airspeed is no pitot)
+    nu = work[W_NU]
+    nu[0], nu[1], nu[2] = 1.0 / k, math.sqrt(max(P[8], 0.0)) / (k * k), nu_tas
+    _log(cfg, flags, inn, acc, nu, np.int64(INN_ASPD), t, np.int64(3), nis, ok)
+    tc = tas / k
+    return tc, tc * tc * P[8] / (k * k)
