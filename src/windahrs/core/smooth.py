@@ -429,22 +429,8 @@ def smooth(est: Estimator, flight: Flight, *, initial: InitialState | None = Non
 
 
 def _smooth_compiled(est: Any, flight: Flight, initial: InitialState | None, name: str) -> Estimate:
-    from windahrs.core.kernel import run_events
-
-    run = est.prepare(flight, initial, cov="none", cov_every=1)  # (the outputs: 13 floats a sample)
-    st, N, dim = run.st, len(flight.imu.t), run.layout.dim
-    need = smooth_bytes(N, dim)
-    if need > SMOOTH_BUDGET:
-        raise ValueError(
-            f"smoothing {est.label!r}: {N} IMU samples need {need / 2**30:.2f} GiB of record "
-            f"({need // N} bytes per sample: the {dim}x{dim} covariance and the nominal state), beyond "
-            f"SMOOTH_BUDGET = {SMOOTH_BUDGET / 2**30:g} GiB (windahrs.core.smooth); smooth a shorter span "
-            "of the flight"
-        )
-    sm = SmoothRecord(np.zeros((N, N_NOM)), np.zeros((N, dim, dim)), np.zeros((N, N_AUX)))
-    run_events(st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True, sm)
-    if st.cfg[C_ADD] != 0 or st.cfg[C_N] != dim:
-        raise AssertionError("smoothing: not an error-state layout")
+    run, sm = forward_record(est, flight, initial)
+    st = run.st
     backward(st.cfg, st.prm, sm.nom, sm.P, sm.aux, st.P.shape[0])
     ok = sm.aux[:, A_INIT] == 1.0
     run.q[ok] = sm.nom[ok, N_Q : N_Q + 4]
@@ -457,6 +443,30 @@ def _smooth_compiled(est: Any, flight: Flight, initial: InitialState | None, nam
     st.cfg[C_COV_EVERY] = 1
     out: Estimate = est.finish(run._replace(cov=sm.P))
     return dataclasses.replace(out, filter=name)
+
+
+def forward_record(est: Any, flight: Flight, initial: InitialState | None = None) -> tuple[Any, SmoothRecord]:
+    """The forward pass of a compiled error-state estimator over ``flight`` with the
+    smoothing record: its :class:`~windahrs.core.kernel.PreparedRun` (the filter's outputs,
+    no covariance) and the :class:`SmoothRecord`. ValueError beyond :data:`SMOOTH_BUDGET`,
+    before the record is allocated."""
+    from windahrs.core.kernel import run_events
+
+    run = est.prepare(flight, initial, cov="none", cov_every=1)  # (the outputs: 13 floats a sample)
+    st, N, dim = run.st, len(flight.imu.t), run.layout.dim
+    if st.cfg[C_ADD] != 0 or st.cfg[C_N] != dim:
+        raise ValueError(f"smoothing {est.label!r}: not an error-state filter")
+    need = smooth_bytes(N, dim)
+    if need > SMOOTH_BUDGET:
+        raise ValueError(
+            f"smoothing {est.label!r}: {N} IMU samples need {need / 2**30:.2f} GiB of record "
+            f"({need // N} bytes per sample: the {dim}x{dim} covariance and the nominal state), beyond "
+            f"SMOOTH_BUDGET = {SMOOTH_BUDGET / 2**30:g} GiB (windahrs.core.smooth); smooth a shorter span "
+            "of the flight"
+        )
+    sm = SmoothRecord(np.zeros((N, N_NOM)), np.zeros((N, dim, dim)), np.zeros((N, N_AUX)))
+    run_events(st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True, sm)
+    return run, sm
 
 
 class Smoothed(Estimator):
