@@ -4,8 +4,7 @@ symmetric positive definite covariance, chain breaks, refusals, and its spec for
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,14 +14,27 @@ import windahrs as wa
 from windahrs.core import smooth as S
 from windahrs.core.layout import C_OFF, INN_RESET
 from windahrs.estimate import EstimatorWarning
+from windahrs.experiments.reproduce import MIN_WIND_NOISE
 from windahrs.filters.base import InitialState
+from windahrs.filters.params import matched_to
 from windahrs.filters.registry import make_estimator
 from windahrs.metrics import chi2_band, nees_attitude
 from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul
-from windahrs.sim.scenario import make_scenario, simulate
+from windahrs.sim.scenario import Scenario, default_sensors, make_scenario, simulate
+from windahrs.sim.wind import low_altitude_params, random_walk_density
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from gnss_outage import _matched_ins_wind  # noqa: E402
+
+def _matched_ins_wind(sc: Scenario) -> wa.Estimator:
+    """ins-wind with the simulated sensors' noise and the wind random walk of the scenario's
+    turbulence, as benchmarks/gnss_outage.py and the reproduction tune it."""
+    est: Any = wa.estimator("ins-wind")
+    wind_h, wind_v = random_walk_density(low_altitude_params(sc.wind.w20, sc.altitude), sc.airspeed)
+    p = matched_to(default_sensors(sc), est.params).replace(
+        accel_sigma=est.params.accel_sigma,
+        wind_noise=max(wind_h, MIN_WIND_NOISE),
+        wind_noise_vertical=max(wind_v, MIN_WIND_NOISE),
+    )
+    return type(est)(p)  # type: ignore[no-any-return]
 
 
 def _skew(w: np.ndarray) -> np.ndarray:

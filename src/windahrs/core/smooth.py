@@ -93,7 +93,6 @@ from windahrs.core.layout import (
 )
 from windahrs.core.predict import _predict_es, add_held_sample_noise
 from windahrs.core.quat import _qexp, _qmul, _qnormalize
-
 from windahrs.filters.base import Estimator
 
 if TYPE_CHECKING:
@@ -410,7 +409,9 @@ def smoothed_label(label: str) -> str:
     return f"{label}:smooth=true" if ":" in label else f"{label}-smooth"
 
 
-def smooth(est: Estimator, flight: Flight, *, initial: InitialState | None = None, label: str | None = None) -> Estimate:
+def smooth(
+    est: Estimator, flight: Flight, *, initial: InitialState | None = None, label: str | None = None
+) -> Estimate:
     """The smoothed Estimate of ``flight`` by ``est`` (the module docstring): attitude, gyro
     bias, velocity, wind and covariance at every IMU sample from the whole flight, the
     forward pass's innovations and resets. ``Estimate.filter`` is ``label`` (default
