@@ -4,6 +4,7 @@ symmetric positive definite covariance, chain breaks, refusals, and its spec for
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -185,3 +186,23 @@ def test_spec_forms_and_auto() -> None:
     assert auto.filter == "auto-smooth" and auto.meta["auto"].startswith("ins-wind")
     np.testing.assert_array_equal(auto.q_nb, ins.q_nb)
     assert auto.wind_n is not None and np.isfinite(auto.wind_n[-1]).all()
+
+
+def test_cli_smooth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from windahrs.cli import main
+
+    f = tmp_path / "fw.h5"
+    assert main(["simulate", "--vehicle", "fixedwing", "--wind", "5", "--duration", "20", "--seed", "1",
+                 "--out", str(f)]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["estimate", str(f), "--filter", "ins-wind", "--smooth", "--out", str(tmp_path / "e.h5")]) == 0
+    assert "ins-wind-smooth: RMSE vs truth" in capsys.readouterr().out
+    assert main(["estimate", str(f), "--filter", "ekf7", "--smooth"]) == 2
+    assert "--smooth: smoothing: estimator 'ekf7' cannot be smoothed" in capsys.readouterr().err
+    assert main(["compare", str(f), "--filters", "mekf,ekf7", "--smooth", "--json"]) == 0
+    io = capsys.readouterr()
+    assert '"mekf-smooth"' in io.out and '"ekf7"' in io.out
+    assert "--smooth: ekf7 runs unsmoothed" in io.err
+    assert main(["bench-data", str(tmp_path), "--filters", "mekf,auto", "--smooth"]) == 0
+    out = capsys.readouterr().out
+    assert "mekf-smooth" in out and "auto-smooth" in out
