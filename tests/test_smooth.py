@@ -79,7 +79,7 @@ def _rts_oracle(est: wa.Estimator, rec: S.SmoothRecord) -> tuple[np.ndarray, np.
 
 def test_equals_a_dense_numpy_rts() -> None:
     # a short level flight: the rotation over a step is tiny, the error dynamics linear
-    flight = wa.simulate("quadrotor", seed=2, wind=0.0, duration=6.0)
+    flight = wa.simulate("quadrotor", seed=2, wind=0.0, duration=4.0)
     est = wa.estimator("mekf")
     run, rec = S.forward_record(est, flight)
     q_o, bg_o, P_o = _rts_oracle(est, rec)
