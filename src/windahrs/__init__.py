@@ -46,6 +46,7 @@ __all__ = [
     "read",
     "score",
     "simulate",
+    "smooth",
 ]
 
 #: Names loaded on first use: name -> module.
@@ -102,6 +103,19 @@ def estimator(spec: str, **params: Any) -> Estimator:
     built = with_overrides(est, spec.split(":")[0], params)
     built.label = spec + "".join(f":{k}={v}" for k, v in params.items())
     return built
+
+
+def smooth(estimator: str | Estimator, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+    """The offline RTS smoother of an error-state estimator (a spec such as ``"ins-wind"`` or
+    ``"auto"``, or an Estimator: ``mekf``, ``mekf-air``, ``ins-wind``, ``ins-drag``, ``auto``)
+    over the whole flight (:mod:`windahrs.core.smooth`): the Estimate with the smoothed
+    attitude, gyro bias, velocity, wind and covariance, labelled ``NAME-smooth``. ValueError
+    naming an estimator it cannot smooth, or a flight beyond its memory budget."""
+    from windahrs.core.smooth import smooth as _smooth
+    from windahrs.filters.registry import make_estimator
+
+    est = make_estimator(estimator) if isinstance(estimator, str) else estimator
+    return _smooth(est, flight, initial=initial)
 
 
 def score(estimate: Estimate, flight: Flight, *, remove_heading: bool | None = None) -> Score:

@@ -569,6 +569,7 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
         args.outputs.file(args.out, "--out")
     for spec in specs:  # fail on a bad name or field before walking the folder
         make_estimator(spec)
+    specs = _smoothed(specs, args.smooth)
     found = discover_flights(args.dir)
     if not found.flights:
         why = "; ".join(f"{s.path}: {s.reason}" for s in found.skipped)
@@ -661,6 +662,13 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             raise UsageError(f"--out: {args.out} is the input FILE; give another name")
         args.outputs.file(args.out, "--out")
     est = make_estimator(args.filter, args.params)
+    if args.smooth:
+        from windahrs.core.smooth import Smoothed
+
+        try:
+            est = est if isinstance(est, Smoothed) else Smoothed(est)
+        except ValueError as exc:
+            raise UsageError(f"--smooth: {exc}") from None
     flight = _read(args.file)
     result = est.run(flight)
     chose = describe_choice(result)
@@ -684,7 +692,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     except ValueError:
         print("no truth or reference in the flight: nothing to score")
         return 0
-    print(f"{args.filter}: {_score_line(score(result, flight))}")
+    print(f"{result.filter if args.smooth else args.filter}: {_score_line(score(result, flight))}")
     return 0
 
 
@@ -700,6 +708,24 @@ def _specs(text: str, option: str = "--filters", what: str = "filter") -> list[s
     return specs
 
 
+def _smoothed(specs: list[str], smooth: bool) -> list[str]:
+    """With --smooth, each spec the smoother takes in its smoothed form (``NAME-smooth``,
+    ``SPEC:smooth=true``); the others as they are, with a note on stderr."""
+    if not smooth:
+        return specs
+    from windahrs.core.smooth import Smoothed, smoothed_label, supports
+    from windahrs.filters.registry import make_estimator
+
+    out = []
+    for spec in specs:
+        est = make_estimator(spec)
+        why = None if isinstance(est, Smoothed) else supports(est)
+        if why is not None:
+            _note(f"--smooth: {spec} runs unsmoothed ({why})")
+        out.append(spec if why is not None or isinstance(est, Smoothed) else smoothed_label(spec))
+    return out
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     import json
 
@@ -709,14 +735,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from windahrs.windfit import describe_wind_fit
 
     if args.filters is not None:
-        estimators = [make_estimator(n) for n in _specs(args.filters)]  # fail on a bad name before any work
+        # fail on a bad name before any work
+        estimators = [make_estimator(n) for n in _smoothed(_specs(args.filters), args.smooth)]
         flight = _read(args.file)
     else:  # the defaults, less those the flight lacks a sensor for or that are not installed
         flight = _read(args.file)
         selection = select_estimators(None).for_flight(flight)
         for note in selection.notes:
             _note(note)
-        estimators = list(selection.estimators.values())
+        estimators = [make_estimator(n) for n in _smoothed(list(selection.estimators), args.smooth)]
     with _bar(len(estimators), "compare") as bar:
         try:
             res = compare(flight, estimators, align=args.align, progress=lambda done, _: bar.update(done - bar.n))
@@ -792,6 +819,16 @@ BENCH_ALIGN_HELP = (
     "filter, as compare --align does; printed above each recording's table (in --json: 'alignment' by "
     "recording). A recording whose first filter does not run, or whose fit fails, is scored against the reference "
     "as logged, and says so; a residual over 5 deg is flagged as an unreliable alignment"
+)
+
+SMOOTH_HELP_ONE = (
+    "offline: run the filter's RTS smoother over the whole flight (mekf, mekf-air, ins-wind, ins-drag, auto; "
+    "same as the spec NAME-smooth): attitude, bias, velocity, wind and covariance from the whole log; fails for "
+    "another filter"
+)
+SMOOTH_HELP_MANY = (
+    "offline: run each filter the RTS smoother takes (mekf, mekf-air, ins-wind, ins-drag, auto) as its smoother "
+    "(NAME-smooth); the others run as they are, with a note on stderr"
 )
 
 
@@ -912,6 +949,7 @@ def _parser() -> argparse.ArgumentParser:
         help="parameters: [windahrs] fields, or [px4] / [ardupilot] parameter names",
     )
     e.add_argument("--out", type=_file_path, default=None, metavar="EST.h5", help="write the Estimate here")
+    e.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_ONE)
     e.set_defaults(func=_cmd_estimate)
 
     c = sub.add_parser(
@@ -927,6 +965,7 @@ def _parser() -> argparse.ArgumentParser:
         "flight lacks a sensor for or that are not installed)",
     )
     c.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
+    c.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_MANY)
     c.add_argument("--align", action="store_true", help=ALIGN_HELP)
     c.set_defaults(func=_cmd_compare)
 
@@ -1041,6 +1080,7 @@ def _parser() -> argparse.ArgumentParser:
                    metavar="A,B,...", help="estimator specs (a filter that cannot run on a recording fails that "
                    "row only)")
     b.add_argument("--align", action="store_true", help=BENCH_ALIGN_HELP)
+    b.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_MANY)
     b.add_argument("--json", action="store_true", help="print the JSON result instead of the table")
     b.add_argument("--out", type=_file_path, default=None, metavar="FILE", help="also write .json or a text table")
     b.set_defaults(func=_cmd_bench_data)

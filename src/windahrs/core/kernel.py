@@ -209,6 +209,7 @@ from windahrs.core.quat import (
     _xi_into,
 )
 from windahrs.core.reset import set_attitude_cov
+from windahrs.core.smooth import record_post, record_pre
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     COV_RECORDS,
@@ -554,14 +555,16 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
 
 
 @njit(**_JIT)
-def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec):
+def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec, sm=None):
     """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,),
     kinds (E,), vals (E, 6)), skip and count NaN samples, and (rec) record for IMU sample k
     the state after every event with t <= t_imu[k] (before the next IMU sample).
 
     The streamer calls it with one event at a time and rec=False: the per-kind step
     functions are inlined into this one compiled function, which batch and stream share
-    (and numba compiles the filter once)."""
+    (and numba compiles the filter once). sm: the smoother's record
+    (:class:`windahrs.core.smooth.SmoothRecord`, with rec), or None: a normal run, whose
+    compiled loop has no smoothing code (numba prunes the branches on ``sm is None``)."""
     k = np.int64(-1)
     cfg, prm, x, flags, P, work, sup, inn, acc = st  # once: each extraction costs refcounting
     n_ev = t_ev.shape[0]
@@ -571,6 +574,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec)
         row = vals[i]
         if kind == EVENT_IMU:
             k += 1
+            if sm is not None:
+                record_pre(sm, k, x, flags, t, row, sample_ok(kind, row))
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
         elif kind == EVENT_IMU:
@@ -584,6 +589,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec)
         # IMU sample k gets the state after the last event before the next IMU sample
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
+            if sm is not None:
+                record_post(sm, k, cfg, x, flags, P)
 
 
 # --- Python side: encoding, estimators, streamer -------------------------------------------

@@ -210,7 +210,7 @@ class Auto(Estimator):
         sensors = tuple(s for s in _ORDER if s in fused)
         return AutoChoice(name, est, spec, sensors, reason, ignored)
 
-    def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
+    def run(self, flight: Flight, *, initial: InitialState | None = None, smooth: bool = False) -> Estimate:
         """Choose from the flight's streams (:func:`usable_streams`) and run the choice;
         ``filter`` is auto's label and ``meta`` says what ran (:meth:`AutoChoice.meta`).
 
@@ -219,7 +219,10 @@ class Auto(Estimator):
         gravity) for more than :data:`FALLBACK_SHARE` of the flight, the flight is run
         again without GNSS ([mekf]) and the run that failed the check for less time is
         kept, as ArduPilot's EKF3 switches to the lane with the smaller error score;
-        ``meta["auto_fallback"]`` says why. Only the kept run's warnings are emitted."""
+        ``meta["auto_fallback"]`` says why. Only the kept run's warnings are emitted.
+
+        smooth: run the choice's offline smoother (:func:`windahrs.core.smooth.smooth`)
+        instead, the fallback judged on the smoothed runs."""
         self.check(flight)
         streams = usable_streams(flight)
         timing = float(flight.meta.get("gnss.timing_sigma_s", 0.0) or 0.0)
@@ -229,11 +232,11 @@ class Auto(Estimator):
             choice = dataclasses.replace(
                 choice, reason=f"GNSS velocity stamped on another clock (timing uncertain by {timing:g} s, "
                 f"beyond {MAX_GNSS_TIMING_S:g} s): attitude without it")
-        est, caught = _run_quietly(choice.estimator, flight, initial)
+        est, caught = _run_quietly(choice.estimator, flight, initial, smooth)
         duration = float(flight.imu.t[-1] - flight.imu.t[0])
         if "gnss" in choice.sensors and _alert_seconds(est) > FALLBACK_SHARE * duration:
             other = self.choose(streams - {"gnss"})
-            est2, caught2 = _run_quietly(other.estimator, flight, initial)
+            est2, caught2 = _run_quietly(other.estimator, flight, initial, smooth)
             if _alert_seconds(est2) < _alert_seconds(est):
                 why = (f"{choice.spec}'s tilt disagreed with the mean specific force for "
                        f"{_alert_seconds(est):.1f} s, {other.spec}'s for {_alert_seconds(est2):.1f} s")
@@ -254,12 +257,17 @@ class Auto(Estimator):
 
 
 def _run_quietly(
-    est: Estimator, flight: Flight, initial: InitialState | None
+    est: Estimator, flight: Flight, initial: InitialState | None, smooth: bool = False
 ) -> tuple[Estimate, list[warnings.WarningMessage]]:
-    """The estimate and the warnings the run emitted, held back."""
+    """The estimate (smooth: the smoothed one) and the warnings the run emitted, held back."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        out = est.run(flight, initial=initial)
+        if smooth:
+            from windahrs.core.smooth import smooth as smoothed
+
+            out = smoothed(est, flight, initial=initial, label=est.label)
+        else:
+            out = est.run(flight, initial=initial)
     return out, list(caught)
 
 

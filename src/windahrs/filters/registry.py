@@ -14,7 +14,10 @@ from pathlib import Path
 
 from windahrs.filters.base import Estimator
 
-__all__ = ["REGISTRY", "make_estimator", "names", "with_overrides"]
+__all__ = ["REGISTRY", "SMOOTH_SUFFIX", "make_estimator", "names", "with_overrides"]
+
+#: A registry name with this suffix is that estimator's offline smoother (make_estimator).
+SMOOTH_SUFFIX = "-smooth"
 
 #: name -> (module, class, one-line description)
 REGISTRY: dict[str, tuple[str, str, str]] = {
@@ -103,7 +106,9 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
     """Build an estimator from a spec ``NAME`` or ``NAME:field=value:field=value`` (fields of
     its parameter record, e.g. ``paper:wind=mean`` or ``mekf:mag_mode=heading``; a vector
     field's components separated by ``/``, e.g. ``paper:wind=mean:mean_wind_n=3/-2/0``),
-    with parameters from a TOML file first when given.
+    with parameters from a TOML file first when given. ``NAME-smooth`` or ``smooth=true``: its
+    offline smoother (:mod:`windahrs.core.smooth`; e.g. ``auto-smooth``,
+    ``mekf:mag_mode=heading:smooth=true``), ValueError for an estimator it cannot smooth.
 
     Unknown names raise ValueError listing the known ones; unknown fields name the field.
     """
@@ -114,12 +119,22 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
         if not sep or not key:
             raise ValueError(f"filter {spec!r}: expected NAME:field=value, found {a!r}")
         overrides[key.strip()] = _value(val.strip(), key.strip(), spec)
+    smooth = overrides.pop("smooth", False)
+    if not isinstance(smooth, bool):
+        raise ValueError(f"filter {spec!r}: smooth: expected true or false, found {smooth!r}")
+    if name.endswith(SMOOTH_SUFFIX) and name not in REGISTRY:
+        name, smooth = name[: -len(SMOOTH_SUFFIX)], True
     est = _build(name, params_file)
-    if not overrides:
-        return est
-    est_new = with_overrides(est, name, overrides)
-    est_new.label = spec
-    return est_new
+    if overrides:
+        est = with_overrides(est, name, overrides)
+        est.label = spec
+    if smooth:
+        from windahrs.core.smooth import Smoothed
+
+        return Smoothed(est, label=spec)
+    if ":" in spec:
+        est.label = spec
+    return est
 
 
 def with_overrides(est: Estimator, name: str, overrides: dict[str, object]) -> Estimator:
