@@ -103,7 +103,8 @@ C_N = 18  # covariance dimension (additive: DIM + 1)
 C_IBM = 19  # ... magnetometer bias (-1: none)
 C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
 C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
-C_AVAR = 22  # 1: add the on-line variance X_AVAR to the gravity measurement's noise
+C_AVAR = 22  # the on-line variance X_AVAR in the gravity measurement's noise: 0 no; 1 yes, low-passed
+#            from zero; 2 yes, started as the mean of the samples so far (accel_noise_mean_start)
 C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
 C_OFF = 24  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
@@ -193,7 +194,8 @@ X_SW2 = X_AVAR + 1  # mean square of the angular rate's sample-to-sample change,
 X_SF2 = X_AVAR + 2  # ... of the specific force's, (m/s^2)^2
 X_PEND = X_AVAR + 3  # (6,) the held sample's excess over the propagated one: w (rad/s), f (m/s^2)
 X_DTPEND = X_AVAR + 9  # its step, s
-N_X = X_AVAR + 10
+X_NAVAR = X_AVAR + 10  # samples averaged into X_AVAR so far
+N_X = X_AVAR + 11
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
