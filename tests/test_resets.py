@@ -62,11 +62,15 @@ def test_tilt_check_flags_a_wrong_attitude_and_passes_a_right_one() -> None:
 
 
 def test_a_real_flight_that_diverges_is_flagged_and_warned() -> None:
-    """ANSFL Horizontal/path_20 (Xsens DOT on a DJI quadrotor, rotor vibration): [mekf]
-    ends about 20 deg off DJI's tilt; it must say so."""
+    """ANSFL Horizontal/path_20 (Xsens DOT on a DJI quadrotor, rotor vibration): [mekf] with
+    its on-line accelerometer noise low-passed from zero (accel_noise_mean_start=false, the
+    default until it was changed) ends about 20 deg off DJI's tilt and 17 deg off its own
+    mean specific force; it must say so. (With the default it ends 12.9 deg off DJI but
+    within 10 deg of that mean, which the check does not flag: docs/RESULTS.md section 10.)"""
     flight = wa.read(require_data("ansfl", "Horizontal", "path_20"))
-    with pytest.warns(EstimatorWarning, match=r"mekf: tilt disagrees with the mean specific force by up to \d+ deg"):
-        est = wa.estimator("mekf").run(flight)
+    spec = "mekf:accel_noise_mean_start=false"
+    with pytest.warns(EstimatorWarning, match=rf"{spec}: tilt disagrees with the mean specific force by up to \d+ deg"):
+        est = wa.estimator(spec).run(flight)
     assert len(est.alerts["tilt"]) >= 1
     assert est.alerts["tilt"][-1, 1] > est.t[-1] - 5.0  # up to the end of the flight
 

@@ -46,8 +46,10 @@ FILTERS = (
 #: Keys rewritten by ``--only`` since the stored commit: filter -> (commit, why).
 REGENERATED = {
     "ukf": ("cfeedb9", "sigma points from an LDL^T root instead of an eigen root (determinism, speed)"),
-    "mekf": ("stop 16", "accel_noise_online on by default (the accelerometer's noise on line, from the "
-             "kernel's sample differences; max 2.9e-3 rad from addd942)"),
+    "mekf": ("stop 16, then branch ansfl", "accel_noise_online on by default (the accelerometer's noise on "
+             "line, from the kernel's sample differences; max 2.9e-3 rad from addd942); then "
+             "accel_noise_mean_start on by default (that noise starts as the mean of the samples so far, "
+             "VQF's filter start; max 1.9e-3 rad from stop 16, fixedwing_8)"),
 }
 #: Physically tuned filters as the reproduction builds them (matched to the sensors).
 MATCHED = ("ekf7", "mekf", "usque", "ins-wind", "mekf-air")

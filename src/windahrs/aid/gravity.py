@@ -7,8 +7,8 @@ a first-order low-pass of the compensated specific force in an almost inertial f
 running mean is rotated into each new body frame by the gyro increment, VQF's tau_acc), the
 mean then being the measurement. Gate: ``| |f| - g | < accel_norm_gate g`` (a rejected
 sample logs NaN), then each innovation component within ``gate_accel`` sigmas.
-Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_norm_gate,
-accel_compensation, accel_lowpass, gate_accel.
+Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_noise_online,
+accel_noise_mean_start, accel_norm_gate, accel_compensation, accel_lowpass, gate_accel.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from windahrs.core.layout import (
     X_BG,
     X_DF,
     X_FBAR,
+    X_NAVAR,
     X_Q,
     X_VAIR,
 )
@@ -75,6 +76,7 @@ LOST_COS = math.cos(math.radians(45.0))
 PARAMS = (
     "accel_sigma",
     "accel_noise_online",
+    "accel_noise_mean_start",
     "accel_norm_gate",
     "accel_compensation",
     "accel_lowpass",
@@ -90,13 +92,20 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gravity, ``h = C_bn (-g_n) (+ compensation) (+ b_a)``, ``H_att = [h_g]x``, R = accel_sigma^2 I,
     gated on ``| |f| - g | > accel_norm_gate g`` and on the innovation (gate_accel)."""
     fx, fy, fz = row[3], row[4], row[5]
-    if cfg[C_AVAR] == 1 and dt > 0:
+    if cfg[C_AVAR] >= 1 and dt > 0:
         # the accelerometer's noise on line, from the differences of consecutive samples
         # (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
         # sample-to-sample noise (vibration, aliased rotor harmonics), while the smooth
         # motion of the vehicle barely enters it at IMU rates
         d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
-        x[X_AVAR] += _lowpass_gain(dt, prm[R_ACC_LP]) * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
+        gain = _lowpass_gain(dt, prm[R_ACC_LP])
+        if cfg[C_AVAR] == 2:
+            # VQF's filter start: the mean of the samples so far until the low-pass's own
+            # gain takes over, so that the first seconds are weighed by the noise measured,
+            # not by a variance growing from zero (which trusted the first, vibrating means)
+            x[X_NAVAR] += 1.0
+            gain = max(gain, 1.0 / x[X_NAVAR])
+        x[X_AVAR] += gain * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
     # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
     g = prm[R_GRAV]
@@ -146,7 +155,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     h0, h1, h2 = y0, y1, y2
     if has_k:
         h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
-    var = prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] == 1 else prm[R_ACC_VAR]
+    var = prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
     iba = cfg[C_IBA]

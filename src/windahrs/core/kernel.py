@@ -682,7 +682,7 @@ def make_state(
     cfg[C_SYN] = int(p.synthetic_sideslip)
     cfg[C_DRAG] = int(p.drag and kind == "ins-wind")
     cfg[C_ASC] = int(p.airspeed_scale and kind != "mekf")
-    cfg[C_AVAR] = int(p.accel_noise_online and p.accel_lowpass > 0)
+    cfg[C_AVAR] = (2 if p.accel_noise_mean_start else 1) if (p.accel_noise_online and p.accel_lowpass > 0) else 0
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
     cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
     cfg[C_INI] = int(ini is not None)

@@ -110,7 +110,8 @@ C_N = 18  # covariance dimension (additive: DIM + 1)
 C_IBM = 19  # ... magnetometer bias (-1: none)
 C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
 C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
-C_AVAR = 22  # 1: add the on-line variance X_AVAR to the gravity measurement's noise
+C_AVAR = 22  # the on-line variance X_AVAR in the gravity measurement's noise: 0 no; 1 yes, low-passed
+#            from zero; 2 yes, started as the mean of the samples so far (accel_noise_mean_start)
 C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
 C_ASC = 24  # 1: estimate the airspeed scale on line (windahrs.aid.airspeed_scale)
 C_OFF = 25  # (N_SENSORS,) first row of each sensor's log
@@ -209,7 +210,8 @@ X_DTPEND = X_AVAR + 9  # its step, s
 X_ASC = X_AVAR + 10  # (3,) airspeed scale estimator: wind N, E m/s, inverse scale (measured / true)
 X_ASCP = X_AVAR + 13  # (9,) its covariance, row-major
 X_TASC = X_AVAR + 22  # time of its last update, s
-N_X = X_AVAR + 23
+X_NAVAR = X_AVAR + 23  # samples averaged into X_AVAR so far
+N_X = X_AVAR + 24
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
