@@ -38,9 +38,11 @@ from windahrs.core.layout import (
     C_IW,
     C_N,
     C_OFF,
+    C_TILT,
     EVENT_LOGS,
     F64,
     I64,
+    INN_ACCEL,
     INN_ASPD,
     INN_IMU,
     INN_RESET,
@@ -71,6 +73,7 @@ from windahrs.core.predict import (
     _normalise_add,
 )
 from windahrs.core.quat import (
+    _dcm9,
     _qexp,
     _qmul,
     _qnormalize,
@@ -316,6 +319,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1 + s20 * k2) - u0
             Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1 + s21 * k2) - u1
             Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
+        if cfg[C_TILT] == 1 and sensor == INN_ACCEL:
+            _tilt_only(x, Kt, Gt, dx, S, U, nu)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
             for j in range(P.shape[1]):
@@ -375,6 +380,28 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             if cfg[C_IBM] >= 0:
                 x[X_BM + a] += dx[cfg[C_IBM] + a]
     return True
+
+
+@njit(inline="always", **_JIT)
+def _tilt_only(x, Kt, Gt, dx, S, U, nu):
+    """The gravity update's gain without its part about the vertical (3 rows, error state,
+    attitude columns 0..2): gravity says nothing of the heading, and without a heading aid
+    the covariance's correlations through which the EKF would turn it are built of
+    unmodelled accelerations and grow without bound (VQF corrects the inclination only,
+    likewise). K_att <- (I - u u^T) K_att with u = C_bn e_3, the vertical in body axes; dx
+    and G = K S / 2 - U^T follow the gain (the Joseph form holds for any gain)."""
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    u0, u1, u2 = c[6], c[7], c[8]
+    for k in range(3):
+        s = Kt[k, 0] * u0 + Kt[k, 1] * u1 + Kt[k, 2] * u2
+        Kt[k, 0] -= s * u0
+        Kt[k, 1] -= s * u1
+        Kt[k, 2] -= s * u2
+    for j in range(3):
+        k0, k1, k2 = Kt[0, j], Kt[1, j], Kt[2, j]
+        dx[j] = k0 * nu[0] + k1 * nu[1] + k2 * nu[2]
+        for r in range(3):
+            Gt[r, j] = 0.5 * (S[0, r] * k0 + S[1, r] * k1 + S[2, r] * k2) - U[r, j]
 
 
 @njit(**_JIT)

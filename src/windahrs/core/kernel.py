@@ -46,6 +46,9 @@ from windahrs.aid.mag import (
     _set_mag_reference,
     fuse_mag,
 )
+from windahrs.aid.rest import (
+    fuse_rest,
+)
 from windahrs.aid.sideslip import (
     fuse_sideslip,
 )
@@ -83,8 +86,10 @@ from windahrs.core.layout import (
     C_KIND,
     C_MAG,
     C_N,
+    C_REST,
     C_SITE_MAG,
     C_SYN,
+    C_TILT,
     C_WAIT_GNSS,
     C_WAIT_MAG,
     COMP_AIRSPEED,
@@ -150,6 +155,12 @@ from windahrs.core.layout import (
     R_P0_W,
     R_P0_WV,
     R_RESET_TOUT,
+    R_REST_CLIP,
+    R_REST_F2,
+    R_REST_MIN_T,
+    R_REST_TAU,
+    R_REST_VAR,
+    R_REST_W2,
     R_SA2,
     R_SB2,
     R_SBA2,
@@ -189,6 +200,8 @@ from windahrs.core.layout import (
     X_Q,
     X_TIMU,
     X_TOK,
+    X_TREST,
+    X_TRFUSE,
     X_TWIN0,
     X_V,
     X_VAIR,
@@ -400,6 +413,8 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
         if dt > prm[R_HOLD_DT]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
+        if cfg[C_REST] == 1:  # the gyro's bias, when the vehicle is at rest
+            fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
     if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
         return
@@ -682,6 +697,12 @@ def make_state(
     cfg[C_SYN] = int(p.synthetic_sideslip)
     cfg[C_DRAG] = int(p.drag and kind == "ins-wind")
     cfg[C_ASC] = int(p.airspeed_scale and kind != "mekf")
+    # without a heading aid (the 6-D mode of the error-state filters that fuse gravity) the
+    # gravity update corrects the tilt only (core.kalman._tilt_only), and rest detection
+    # ("auto") measures the gyro bias, the vertical one included (aid.rest)
+    cfg[C_TILT] = int(kind != "ins-wind" and not additive
+                      and ("mag" not in has or effective_mag_mode(p, site) == "off"))
+    cfg[C_REST] = int(p.rest_detection == "on" or (p.rest_detection == "auto" and cfg[C_TILT] == 1))
     cfg[C_AVAR] = (2 if p.accel_noise_mean_start else 1) if (p.accel_noise_online and p.accel_lowpass > 0) else 0
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
     cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
@@ -754,6 +775,12 @@ def make_state(
     prm[R_ASC_WN2] = p.airspeed_scale_wind_noise**2
     prm[R_ASC_TAS_VAR] = p.airspeed_scale_tas_sigma**2
     prm[R_ASC_BETA_VAR] = p.airspeed_scale_beta_sigma**2
+    prm[R_REST_W2] = p.rest_gyro_threshold**2
+    prm[R_REST_F2] = p.rest_accel_threshold**2
+    prm[R_REST_TAU] = p.rest_tau
+    prm[R_REST_MIN_T] = p.rest_min_time
+    prm[R_REST_VAR] = p.rest_bias_sigma**2
+    prm[R_REST_CLIP] = p.rest_bias_clip
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
@@ -769,6 +796,7 @@ def make_state(
     flags[L_FIRST : L_FIRST + N_SENSORS] = -1
     x = np.zeros(N_X)
     x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
+    x[X_TREST], x[X_TRFUSE] = np.nan, -np.inf  # not at rest, never fused
     return KernelState(
         cfg=cfg,
         prm=prm,

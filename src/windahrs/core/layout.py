@@ -59,6 +59,7 @@ AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
     ("sideslip", "air", 1, ""),
     ("drag", "imu", 2, "xy"),
     ("aoa", "air", 1, ""),  # an angle-of-attack vane without a sideslip vane (aid.aoa)
+    ("rest", "imu", 3, "xyz"),  # the gyro at rest as a measurement of its bias (aid.rest)
     # not a sensor: the resets of the state to a sensor that its gate kept out too long
     # (rows: the sensor's index in this table, the size of the reset, how long it was out)
     ("reset", "imu", 3, ""),
@@ -81,6 +82,7 @@ INN_ACCEL, INN_MAG, INN_GNSS = SENSORS.index("accel"), SENSORS.index("mag"), SEN
 INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SENSORS.index("sideslip")
 INN_DRAG = SENSORS.index("drag")
 INN_AOA = SENSORS.index("aoa")
+INN_REST = SENSORS.index("rest")
 INN_ASPD = SENSORS.index("aspd")
 INN_RESET = SENSORS.index("reset")
 INN_IMU = SENSORS.index("imu")
@@ -114,7 +116,9 @@ C_AVAR = 22  # the on-line variance X_AVAR in the gravity measurement's noise: 0
 #            from zero; 2 yes, started as the mean of the samples so far (accel_noise_mean_start)
 C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
 C_ASC = 24  # 1: estimate the airspeed scale on line (windahrs.aid.airspeed_scale)
-C_OFF = 25  # (N_SENSORS,) first row of each sensor's log
+C_REST = 25  # 1: fuse the gyro's bias at rest (windahrs.aid.rest)
+C_TILT = 26  # 1: the gravity update corrects the tilt only (no heading aid: windahrs.core.kalman._fuse)
+C_OFF = 27  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
@@ -173,7 +177,13 @@ R_ASC_KN2 = 61  # airspeed_scale_noise^2, 1/s^2/Hz
 R_ASC_WN2 = 62  # airspeed_scale_wind_noise^2, (m/s^2)^2/Hz
 R_ASC_TAS_VAR = 63  # airspeed_scale_tas_sigma^2, (m/s)^2
 R_ASC_BETA_VAR = 64  # airspeed_scale_beta_sigma^2, rad^2
-N_PRM = 65
+R_REST_W2 = 65  # rest_gyro_threshold^2, (rad/s)^2
+R_REST_F2 = 66  # rest_accel_threshold^2, (m/s^2)^2
+R_REST_TAU = 67  # rest_tau, s
+R_REST_MIN_T = 68  # rest_min_time, s
+R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
+R_REST_CLIP = 70  # rest_bias_clip, rad/s
+N_PRM = 71
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -211,7 +221,12 @@ X_ASC = X_AVAR + 10  # (3,) airspeed scale estimator: wind N, E m/s, inverse sca
 X_ASCP = X_AVAR + 13  # (9,) its covariance, row-major
 X_TASC = X_AVAR + 22  # time of its last update, s
 X_NAVAR = X_AVAR + 23  # samples averaged into X_AVAR so far
-N_X = X_AVAR + 24
+X_RW = X_AVAR + 24  # (3,) low-passed angular rate, rad/s (aid.rest)
+X_RF = X_AVAR + 27  # (3,) low-passed specific force, m/s^2 (aid.rest)
+X_RN = X_AVAR + 30  # samples in those low-passes (0: not started)
+X_TREST = X_AVAR + 31  # when the current rest began, s (NaN: moving)
+X_TRFUSE = X_AVAR + 32  # when the rest measurement was last fused, s
+N_X = X_AVAR + 33
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

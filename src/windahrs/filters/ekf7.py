@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from windahrs.aid import air_vector, airspeed_scale, aoa, gravity, mag, sideslip, tas
+from windahrs.aid import air_vector, airspeed_scale, aoa, gravity, mag, rest, sideslip, tas
 from windahrs.core import imu_screen
 from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator, Kind
@@ -36,7 +36,7 @@ class Ekf7(CompiledEstimator):
     additive = True
     #: no rate-proportional gyro noise and no hard-iron states in the additive form
     parts: ClassVar[tuple[tuple[str, ...], ...]] = (
-        process.ATTITUDE_PARAMS, process.HELD_SAMPLE_PARAMS, imu_screen.PARAMS, gravity.PARAMS, mag.PARAMS
+        process.ATTITUDE_PARAMS, process.HELD_SAMPLE_PARAMS, imu_screen.PARAMS, rest.PARAMS, gravity.PARAMS, mag.PARAMS
     )
 
 

@@ -29,7 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from windahrs.aid import air_vector, airspeed_scale, aoa, drag, gnss_vel, gravity, mag, sideslip, tas
+from windahrs.aid import air_vector, airspeed_scale, aoa, drag, gnss_vel, gravity, mag, rest, sideslip, tas
 from windahrs.core import imu_screen
 from windahrs.core import predict as process
 from windahrs.core.kernel import CompiledEstimator
@@ -71,6 +71,7 @@ class Mekf(CompiledEstimator):
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
         imu_screen.PARAMS,
+        rest.PARAMS,
         process.GYRO_SCALE_PARAMS,
         gravity.PARAMS,
         mag.PARAMS,
@@ -105,6 +106,7 @@ class InsWind(CompiledEstimator):
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
         imu_screen.PARAMS,
+        rest.PARAMS,
         process.GYRO_SCALE_PARAMS,
         process.INS_PARAMS,
         process.WIND_PARAMS,

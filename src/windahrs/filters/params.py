@@ -51,6 +51,8 @@ MAX_MAGNITUDE = 1e50
 
 #: Fields that are angles in rad: at most pi (an attitude or flow angle is off by 180 deg at most).
 ANGLE_FIELDS = frozenset({"init_att", "vane_sigma", "sideslip_sigma", "mag_dip_gate", "airspeed_scale_beta_sigma"})
+#: Fields that are angular rates in rad/s, at most the gyro's widest range.
+_RATE_FIELDS = ("rest_gyro_threshold", "rest_bias_sigma", "rest_bias_clip")
 
 _GYRO_RANGE = 2000.0 * DEG  # rad/s: +-2000 deg/s, the widest full scale of MEMS gyros (MPU-9250, BMI088)
 _ACCEL_RANGE = 16.0 * G0  # m/s^2: +-16 g, the widest common MEMS accelerometer full scale (MPU-9250)
@@ -62,7 +64,8 @@ _SPEED_OF_SOUND = 340.3  # m/s, ISA sea level: no velocity, wind or error of a s
 #: exceed the range the sensor measures; angles are at most pi (:data:`ANGLE_FIELDS`);
 #: every other number at most :data:`MAX_MAGNITUDE`.
 FIELD_MAX: dict[str, float] = {
-    **dict.fromkeys(("gyro_noise", "gyro_bias_noise", "init_bias"), _GYRO_RANGE),
+    **dict.fromkeys(("gyro_noise", "gyro_bias_noise", "init_bias", *_RATE_FIELDS), _GYRO_RANGE),
+    "rest_accel_threshold": _ACCEL_RANGE,
     **dict.fromkeys(("accel_noise", "accel_bias_noise", "accel_sigma", "init_accel_bias", "drag_sigma"),
                     _ACCEL_RANGE),
     **dict.fromkeys(("mag_sigma", "init_mag_bias", "mag_bias_noise"), _MAG_RANGE),
@@ -235,6 +238,16 @@ class EskfParams:
     noise never gets there, a sinusoidal vibration reaches 1.4; 0: no spike test) and the
     next sample does not confirm it as motion. Held samples are logged in
     ``Estimate.alerts["imu"]``.
+
+    Rest (:mod:`windahrs.aid.rest`; [mekf], [mekf-air], [ins-wind], [ekf7], [ekf10]):
+    rest_detection ("on", "off", or "auto": on without a heading aid, in the error-state
+    filters that fuse gravity, where it is the only measurement of the vertical gyro bias)
+    fuses the low-passed angular rate as the gyro bias while the vehicle is at rest: every
+    sample within rest_gyro_threshold rad/s
+    and rest_accel_threshold m/s^2 of its rest_tau s low-pass, the mean rate within
+    rest_bias_clip rad/s, for rest_min_time s; rest_bias_sigma rad/s, the measurement's
+    spread. Defaults: VQF's restThGyr 2 deg/s, restThAcc 0.5 m/s^2, restFilterTau 0.5 s,
+    restMinT 1.5 s, biasSigmaRest 0.03 deg/s, biasClip 2 deg/s.
     """
 
     gyro_noise: float = 0.01 * DEG
@@ -295,6 +308,13 @@ class EskfParams:
     gyro_range: float = GYRO_RANGE
     accel_range: float = ACCEL_RANGE
     imu_spike_gate: float = 8.0
+    rest_detection: Literal["auto", "on", "off"] = "auto"
+    rest_gyro_threshold: float = 2.0 * DEG
+    rest_accel_threshold: float = 0.5
+    rest_tau: float = 0.5
+    rest_min_time: float = 1.5
+    rest_bias_sigma: float = 0.03 * DEG
+    rest_bias_clip: float = 2.0 * DEG
 
     def __post_init__(self) -> None:
         choices = {
@@ -302,6 +322,7 @@ class EskfParams:
             "mag_mode": ("3d", "heading", "off"),
             "heading_model": ("yaw", "vertical"),
             "air_mode": ("auto", "vector", "airspeed", "off"),
+            "rest_detection": ("auto", "on", "off"),
         }
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
@@ -317,6 +338,7 @@ class EskfParams:
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
         for name in ("init_att", "init_bias", "init_v", "init_wind", "init_accel_bias", "airspeed_scale_sigma",
+                     "rest_tau",
                      "airspeed_scale_tas_sigma", "airspeed_scale_beta_sigma"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: expected > 0, found {getattr(self, name)!r}")
