@@ -92,14 +92,8 @@ def _value(text: str, key: str = "", spec: str = "") -> object:
     low = text.lower()
     if low in ("true", "false"):
         return low == "true"
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        return float(text)
-    except ValueError:
-        return text
+    num = _number(text)
+    return text if num is None else num
 
 
 def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimator:
