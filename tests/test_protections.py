@@ -189,3 +189,26 @@ def test_the_covariance_is_kept_within_its_budget(fixedwing: Flight, tmp_path: o
     with pytest.raises(ValueError, match="estimate.cov"):
         Estimate(filter="x", t=full.t, q_nb=full.q_nb, cov=full.cov, state_labels=full.state_labels,
                  cov_index=np.arange(0, n, 7))
+
+
+def test_flags_are_built_when_first_read_and_equal_the_eager_ones(fixedwing: Flight, monkeypatch) -> None:
+    import pickle
+
+    import windahrs.filters.checks as checks
+    from windahrs.flags import estimate_flags
+
+    calls = []
+
+    def counted(est: Estimate, flight: Flight) -> np.ndarray:
+        calls.append(1)
+        return estimate_flags(est, flight)
+
+    monkeypatch.setattr(checks, "estimate_flags", counted)
+    est = wa.estimator("ins-wind").run(fixedwing)
+    assert calls == []  # a run that never reads them does not build them
+    first = est.flags
+    assert first is not None and first.dtype == np.uint32 and len(calls) == 1
+    assert est.flags is first and len(calls) == 1  # built once
+    np.testing.assert_array_equal(first, estimate_flags(est, fixedwing))
+    again = pickle.loads(pickle.dumps(wa.estimator("ins-wind").run(fixedwing)))  # (Dask pickles Estimates)
+    np.testing.assert_array_equal(again.flags, first)

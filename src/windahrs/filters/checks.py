@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import lfilter
 
-from windahrs.estimate import Estimate, EstimatorWarning
+from windahrs.estimate import Deferred, Estimate, EstimatorWarning
 from windahrs.flags import absent_mask, estimate_flags
 from windahrs.flight import Flight
 from windahrs.rotation import quat_rotate
@@ -53,6 +53,8 @@ TILT_HOLD_S = 3.0
 def _fill(a: F64) -> F64:
     """Rows with NaN take the last finite row (the first finite row before any); ``a``
     itself when every row is finite (not copied: the callers do not write to it)."""
+    if np.isfinite(a.sum()):  # (every row finite: one reduction, the common case)
+        return a
     ok = np.isfinite(a).all(axis=1)
     if ok.all():
         return a
@@ -85,7 +87,7 @@ def tilt_alerts(
     f_b, q = _fill(imu.f_b), _fill(est.q_nb)
     if step > 1:  # the block means of the samples, rotated with the block's middle attitude
         n = len(t) // step * step
-        f_b = f_b[:n].reshape(-1, step, 3).mean(axis=1)
+        f_b = np.add.reduceat(f_b[:n], np.arange(0, n, step), axis=0) / step
         t, q = t[step // 2 : n : step], q[step // 2 : n : step]
         dt *= step
     f_n = quat_rotate(q, f_b)  # a_n - g_n for a right attitude
@@ -131,12 +133,15 @@ def with_repairs(est: Estimate, flight: Flight) -> Estimate:
 
 def checked(est: Estimate, flight: Flight) -> Estimate:
     """``est`` with its tilt alerts (``alerts["tilt"]``), its per-sample flags
-    (:func:`windahrs.flags.estimate_flags`) and the flight's repairs, each of its warnings but
+    (:func:`windahrs.flags.estimate_flags`, built when first read: :class:`~windahrs.estimate.Deferred`)
+    and the flight's repairs, each of its warnings but
     the repairs emitted as an EstimatorWarning."""
     rows = tilt_alerts(est, flight)
     if len(rows):
         est = dataclasses.replace(est, alerts={**est.alerts, "tilt": rows})
-    est = dataclasses.replace(with_repairs(est, flight), flags=estimate_flags(est, flight))
+    est = with_repairs(est, flight)
+    done = est  # the flags read the Estimate's own records (not its flags): built when first read
+    est = dataclasses.replace(est, flags=Deferred(lambda: estimate_flags(done, flight)))  # type: ignore[arg-type]
     for line in est.warnings(repairs=False):
         warnings.warn(line, EstimatorWarning, stacklevel=3)
     return est
