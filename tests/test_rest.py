@@ -64,3 +64,17 @@ def test_six_d_heading_on_a_real_trial_beats_the_gyro_alone() -> None:
 
     new_h, old_h = heading_deg(six_d), heading_deg(old)
     assert new_h < 2.0 and new_h < old_h, (new_h, old_h)
+
+
+def test_start_mode_stops_at_the_first_motion() -> None:
+    rng = np.random.default_rng(3)
+    fs, n = 200.0, 5000  # 10 s still, 5 s turning at 20 deg/s about z, 10 s still
+    rate = np.zeros((n, 3))
+    rate[2000:3000, 2] = np.radians(20.0)
+    gyro = BIAS + rate + rng.normal(0.0, np.radians(0.01) * np.sqrt(fs), (n, 3))
+    accel = np.array([0.0, 0.0, -9.80665]) + rng.normal(0.0, 0.02, (n, 3))
+    flight = wa.Flight.from_arrays(rate=fs, gyro=gyro, accel=accel)
+    on = wa.estimator("mekf:rest_detection=on").run(flight).innovations["rest"].t
+    start = wa.estimator("mekf:rest_detection=start").run(flight).innovations["rest"].t
+    assert on.max() > 15.0 and (on < 10.0).any()  # both rests
+    assert start.max() < 10.0 and len(start) == int((on < 10.0).sum())  # the first only

@@ -34,6 +34,7 @@ from windahrs.core.kalman import _bias_rows, _fuse, _lowpass_gain
 from windahrs.core.layout import (
     _JIT,
     C_IBG,
+    C_REST,
     INN_REST,
     R_GATE2_ACC,
     R_REST_CLIP,
@@ -43,6 +44,7 @@ from windahrs.core.layout import (
     R_REST_VAR,
     R_REST_W2,
     R_SG2,
+    REST_START,
     W_H,
     W_NU,
     W_R,
@@ -70,6 +72,8 @@ PARAMS = (
 def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     """IMU sample ``row`` = [w_b, f_b] at t s, dt s after the last one: rest detection,
     and at rest (once per rest_tau) the low-passed angular rate fused as the gyro bias."""
+    if x[X_RN] < 0.0:  # (rest_detection "start", after the first motion)
+        return
     if x[X_RN] == 0.0:
         for i in range(3):
             x[X_RW + i] = row[i]
@@ -88,6 +92,8 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     x[X_RN] += 1.0
     if not (dw2 < prm[R_REST_W2] and df2 < prm[R_REST_F2] and clip <= prm[R_REST_CLIP]):
         x[X_TREST] = np.nan  # moving
+        if cfg[C_REST] == REST_START and x[X_TRFUSE] > -np.inf:
+            x[X_RN] = -1.0  # the start's rest is over: no more rest updates
         return
     if math.isnan(x[X_TREST]):
         x[X_TREST] = t

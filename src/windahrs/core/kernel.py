@@ -173,6 +173,9 @@ from windahrs.core.layout import (
     R_VANE_VAR,
     R_WH2,
     R_WV2,
+    REST_OFF,
+    REST_ON,
+    REST_START,
     S_FBAR,
     S_FLAST,
     S_FMAG,
@@ -413,7 +416,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
         if dt > prm[R_HOLD_DT]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
-        if cfg[C_REST] == 1:  # the gyro's bias, when the vehicle is at rest
+        if cfg[C_REST] != REST_OFF:  # the gyro's bias, when the vehicle is at rest
             fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
     if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
@@ -614,6 +617,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
 _KINDS = {"mekf": KIND_MEKF, "mekf-air": KIND_MEKF_AIR, "ins-wind": KIND_INS}
 _COMP = {"none": COMP_NONE, "gnss": COMP_GNSS, "airspeed": COMP_AIRSPEED}
 _MAG = {"3d": MAG_3D, "heading": MAG_HEADING, "off": MAG_OFF}
+_REST = {"auto": REST_OFF, "on": REST_ON, "off": REST_OFF, "start": REST_START}
 _AIR = {"auto": AIR_AUTO, "vector": AIR_VECTOR, "airspeed": AIR_AIRSPEED, "off": AIR_OFF}
 _STREAMS = ("imu", "mag", "gnss", "air")
 #: The covariance is zero-padded to a multiple of PAD rows and columns (whole SIMD lanes).
@@ -702,7 +706,9 @@ def make_state(
     # ("auto") measures the gyro bias, the vertical one included (aid.rest)
     cfg[C_TILT] = int(kind != "ins-wind" and not additive
                       and ("mag" not in has or effective_mag_mode(p, site) == "off"))
-    cfg[C_REST] = int(p.rest_detection == "on" or (p.rest_detection == "auto" and cfg[C_TILT] == 1))
+    cfg[C_REST] = _REST[p.rest_detection]
+    if p.rest_detection == "auto":
+        cfg[C_REST] = REST_ON if cfg[C_TILT] == 1 else REST_OFF
     cfg[C_AVAR] = (2 if p.accel_noise_mean_start else 1) if (p.accel_noise_online and p.accel_lowpass > 0) else 0
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
     cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))

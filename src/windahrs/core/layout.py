@@ -45,6 +45,7 @@ ADD_NONE, ADD_ATT, ADD_COV = 0, 1, 2
 COMP_NONE, COMP_GNSS, COMP_AIRSPEED = 0, 1, 2
 MAG_3D, MAG_HEADING, MAG_OFF = 0, 1, 2
 AIR_AUTO, AIR_VECTOR, AIR_AIRSPEED, AIR_OFF = 0, 1, 2, 3
+REST_OFF, REST_ON, REST_START = 0, 1, 2
 
 #: The sensor registry: each aid source's innovation log as (key, the Flight stream that
 #: feeds it, rows, the rows' labels). Each aid source (windahrs.aid) logs under its key; a
@@ -116,7 +117,7 @@ C_AVAR = 22  # the on-line variance X_AVAR in the gravity measurement's noise: 0
 #            from zero; 2 yes, started as the mean of the samples so far (accel_noise_mean_start)
 C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
 C_ASC = 24  # 1: estimate the airspeed scale on line (windahrs.aid.airspeed_scale)
-C_REST = 25  # 1: fuse the gyro's bias at rest (windahrs.aid.rest)
+C_REST = 25  # REST_*: fuse the gyro's bias at rest (windahrs.aid.rest): never, always, until the first motion
 C_TILT = 26  # 1: the gravity update corrects the tilt only (no heading aid: windahrs.core.kalman._fuse)
 C_OFF = 27  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log

@@ -240,8 +240,9 @@ class EskfParams:
     ``Estimate.alerts["imu"]``.
 
     Rest (:mod:`windahrs.aid.rest`; [mekf], [mekf-air], [ins-wind], [ekf7], [ekf10]):
-    rest_detection ("on", "off", or "auto": on without a heading aid, in the error-state
-    filters that fuse gravity, where it is the only measurement of the vertical gyro bias)
+    rest_detection ("on", "off", "start": until the first motion after a rest, or "auto":
+    on without a heading aid, in the error-state filters that fuse gravity, where it is the
+    only measurement of the vertical gyro bias, else off)
     fuses the low-passed angular rate as the gyro bias while the vehicle is at rest: every
     sample within rest_gyro_threshold rad/s
     and rest_accel_threshold m/s^2 of its rest_tau s low-pass, the mean rate within
@@ -308,7 +309,7 @@ class EskfParams:
     gyro_range: float = GYRO_RANGE
     accel_range: float = ACCEL_RANGE
     imu_spike_gate: float = 8.0
-    rest_detection: Literal["auto", "on", "off"] = "auto"
+    rest_detection: Literal["auto", "on", "off", "start"] = "auto"
     rest_gyro_threshold: float = 2.0 * DEG
     rest_accel_threshold: float = 0.5
     rest_tau: float = 0.5
@@ -322,7 +323,7 @@ class EskfParams:
             "mag_mode": ("3d", "heading", "off"),
             "heading_model": ("yaw", "vertical"),
             "air_mode": ("auto", "vector", "airspeed", "off"),
-            "rest_detection": ("auto", "on", "off"),
+            "rest_detection": ("auto", "on", "off", "start"),
         }
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
