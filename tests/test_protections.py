@@ -142,6 +142,7 @@ def test_a_clean_flight_raises_no_fault_flags(fixedwing: Flight) -> None:
         (F.PitotBlockage(start=10.0, duration=2.0), "air_stuck"),
         (F.VaneFailure(start=10.0, duration=2.0), "air_stuck"),
         (F.ImuDropout(start=10.0, duration=1.0), "imu_absent"),
+        (F.ImuJitter(start=10.0, duration=2.0), "imu_jitter"),
     ],
 )
 def test_each_fault_raises_its_flag_within_a_second(fixedwing: Flight, fault: F.Fault, flag: str) -> None:

@@ -63,6 +63,7 @@ FLAGS: dict[str, tuple[int, str]] = {
     "mag_stuck": (17, "magnetometer repeats its sample exactly"),
     "air_stuck": (18, "airspeed or a vane repeats its value exactly (blocked pitot, stuck vane)"),
     "imu_clipped": (19, "an IMU axis held at one large value (saturated)"),
+    "imu_jitter": (20, "IMU sample step more than a quarter period off the median (stamps taken on receipt?)"),
 }
 #: A sensor repeating its sample exactly for at least this long, s (and STUCK_SAMPLES samples),
 #: is stuck: the noise of MEMS inertial and magnetic sensors and of pitot and vane transducers
@@ -75,6 +76,12 @@ STUCK_SAMPLES = 5
 #: value exactly.
 CLIP_MIN_W = CLIP_W
 CLIP_MIN_F = CLIP_F
+#: An IMU step further than this share of the median period from it (and not a gap) is
+#: jitter: an IMU sampled on its own clock and stamped by its driver keeps its period to
+#: microseconds, a logger that stamps samples on receipt does not (ALFA's mavros telemetry:
+#: 37 % of its steps are 20 % off). The filters integrate over the stamped steps, so a stamp a
+#: quarter period off moves a turning vehicle's attitude by a quarter of a sample's rotation.
+JITTER_SHARE = 0.25
 #: The magnetometer's field is disturbed when its norm is off the reference's by more than
 #: this share (the site's field, else the flight's median norm): VQF's magNormTh, 0.1.
 MAG_NORM_SHARE = 0.1
@@ -192,6 +199,12 @@ def stream_flags(flight: Flight) -> dict[str, tuple[F64, NDArray[np.bool_]]]:
             same[1:] = (col[1:] == col[:-1]) & big[1:, a]
             clipped |= _runs(same, imu.t, CLIP_SAMPLES, 0.0)
     out["imu_stuck"], out["imu_clipped"] = (imu.t, stuck), (imu.t, clipped)
+    jitter = np.zeros(len(imu.t), dtype=bool)
+    if len(imu.t) > 2:
+        dt = np.diff(imu.t)
+        period = float(np.median(dt))
+        jitter[1:] = (np.abs(dt - period) > JITTER_SHARE * period) & (dt < absent_after(imu.t))
+    out["imu_jitter"] = (imu.t, jitter)
     if flight.mag is not None:
         m = flight.mag
         out["mag_stuck"] = (m.t, _runs(_repeats(m.mag_b), m.t, STUCK_SAMPLES, STUCK_S))
