@@ -369,7 +369,8 @@ class Estimator(ABC):
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
     ) -> Streamer:
         """A fresh streaming instance. ``has``: the streams that will be fed (lets the filter
-        wait for a magnetometer sample before initialising heading)."""
+        wait for a magnetometer sample before initialising heading; without "mag", the 6-D
+        mode)."""
 
     def stream(
         self, site: Site | None = None, *, initial: InitialState | None = None, has: Iterable[str] | None = None
@@ -381,7 +382,9 @@ class Estimator(ABC):
         you will feed, from "imu", "mag", "gnss", "air" (default: every stream the filter
         uses, as :meth:`run` on a flight that has them all); the filter waits for a first
         magnetometer (and, for the INS, GNSS) sample before initialising when they are
-        announced, so leave out what you will not feed.
+        announced, so leave out what you will not feed; without "mag" the error-state
+        filters that fuse gravity run their 6-D mode (tilt-only gravity updates, the gyro
+        bias at rest: docs/core.md).
         """
         known = ("imu", "mag", "gnss", "air")
         streams = frozenset(self.uses if has is None else ({has} if isinstance(has, str) else set(has)))
