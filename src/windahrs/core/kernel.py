@@ -330,8 +330,7 @@ def _window_add(x, flags, t, row):
         return
     dt = t - x[X_TIMU]
     if dt > 0:
-        e = _qexp(row[0] * dt, row[1] * dt, row[2] * dt)
-        _rotate_into(_dcm9(e[0], e[1], e[2], e[3]), x, np.int64(X_FWIN))
+        _rotate_into(_turn(row[0], row[1], row[2], dt), x, np.int64(X_FWIN))
     n = x[X_NWIN] + 1.0
     x[X_NWIN] = n
     for a in range(3):
@@ -343,12 +342,18 @@ def _window_add(x, flags, t, row):
 def _rotate_lowpass(x, flags, wx, wy, wz, dt):
     """The low-passed vectors into the new body frame,
     v <- C(Exp(w dt))^T v (w bias-corrected)."""
-    e = _qexp(wx * dt, wy * dt, wz * dt)
-    c = _dcm9(e[0], e[1], e[2], e[3])
+    c = _turn(wx, wy, wz, dt)
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
     if flags[S_MBAR] == 1:
         _rotate_into(c, x, np.int64(X_MBAR))
+
+
+@njit(inline="always", **_JIT)
+def _turn(wx, wy, wz, dt):
+    """C(Exp(w dt)), row-major: the body's turn over one IMU step at the rate w."""
+    e = _qexp(wx * dt, wy * dt, wz * dt)
+    return _dcm9(e[0], e[1], e[2], e[3])
 
 
 @njit(**_JIT)
