@@ -25,12 +25,10 @@ from pathlib import Path
 import numpy as np
 
 import windahrs as wa
-from windahrs.experiments.benchdata import discover_flights
-from windahrs.experiments.compare import align_reference
+from windahrs.experiments.benchdata import aligned_recordings
 from windahrs.filters.base import MissingSensorError
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
-from windahrs.io import read_flight
 from windahrs.metrics import attitude_errors
 
 CANDIDATES = ("mekf", "mekf-air", "ins-wind")
@@ -69,14 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     cases: list[tuple[str, list[tuple[Flight, Flight]]]] = []
     if args.dir.exists():
-        for path in discover_flights(args.dir).flights:
-            flight = read_flight(path)
-            if flight.reference is None and flight.truth is None:
-                continue
-            try:
-                scored = align_reference(flight, ("vqf", make_estimator("vqf").run(flight))).apply(flight)
-            except ValueError:
-                scored = flight
+        for path, flight, scored in aligned_recordings(args.dir):
             cases.append((str(path.relative_to(args.dir)), [(flight, scored)]))
     else:
         print(f"auto_check.py: no recordings at {args.dir} (set WINDAHRS_DATA); simulated cases only",

@@ -25,11 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from windahrs.estimate import EstimatorWarning
-from windahrs.experiments.benchdata import discover_flights
-from windahrs.experiments.compare import align_reference
+from windahrs.experiments.benchdata import aligned_recordings
 from windahrs.filters.base import MissingSensorError
 from windahrs.filters.registry import make_estimator
-from windahrs.io import read_flight
 from windahrs.metrics import attitude_errors
 
 DEFAULT_FILTERS = "auto,mekf,ekf7,usque,ins-wind,mekf-air,ekf10,paper-nowind,ekf,ukf"
@@ -47,14 +45,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"silent.py: no recordings at {args.dir} (set WINDAHRS_DATA)", file=sys.stderr)
         return 2
     rows = []
-    for path in discover_flights(args.dir).flights:
-        flight = read_flight(path)
-        if flight.reference is None and flight.truth is None:
-            continue
-        try:
-            scored = align_reference(flight, ("vqf", make_estimator("vqf").run(flight))).apply(flight)
-        except ValueError:
-            scored = flight
+    for path, flight, scored in aligned_recordings(args.dir):
         cells = []
         for spec in args.filters.split(","):
             with warnings.catch_warnings(record=True) as caught:

@@ -47,7 +47,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,6 +70,7 @@ __all__ = [
     "Discovery",
     "Skipped",
     "TrialScore",
+    "aligned_recordings",
     "bench_data",
     "broad_errors",
     "discover_flights",
@@ -383,6 +384,26 @@ def discover_flights(directory: str | os.PathLike[str]) -> Discovery:
             ".bin/.log, or an ALFA, generic-CSV or ANSFL directory)"
         )
     return Discovery(tuple(flights), tuple(skipped))
+
+
+def aligned_recordings(
+    directory: str | os.PathLike[str], align_on: str = "vqf"
+) -> Iterator[tuple[Path, Flight, Flight]]:
+    """Each recording under ``directory`` (:func:`discover_flights`) that has a reference or
+    truth: its path, the flight, and the flight to score against, its reference aligned
+    (mount and clock) on ``align_on``'s estimate as ``compare --align`` does, or as logged
+    when the fit fails (the benchmarks' real-data loop)."""
+    from windahrs.io import read_flight
+
+    for path in discover_flights(directory).flights:
+        flight = read_flight(path)
+        if flight.reference is None and flight.truth is None:
+            continue
+        try:
+            scored = align_reference(flight, (align_on, make_estimator(align_on).run(flight))).apply(flight)
+        except ValueError:
+            scored = flight
+        yield path, flight, scored
 
 
 def trial_names(paths: Sequence[str | os.PathLike[str]]) -> list[str]:
