@@ -37,6 +37,19 @@ def _qexp(px, py, pz):
 
 
 @njit(**_JIT)
+def _qlog(q0, q1, q2, q3):
+    """Log(q), the rotation vector (rad) of a unit quaternion, the shorter way round (the
+    inverse of :func:`_qexp`)."""
+    if q0 < 0.0:
+        q0, q1, q2, q3 = -q0, -q1, -q2, -q3
+    s = math.sqrt(q1 * q1 + q2 * q2 + q3 * q3)
+    if s < 1e-12:
+        return 2.0 * q1, 2.0 * q2, 2.0 * q3
+    g = 2.0 * math.atan2(s, q0) / s
+    return g * q1, g * q2, g * q3
+
+
+@njit(**_JIT)
 def _qnormalize(q0, q1, q2, q3):
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     s = -1.0 if q0 < 0.0 else 1.0

@@ -92,7 +92,7 @@ from windahrs.core.layout import (
     X_W,
 )
 from windahrs.core.predict import _predict_es, add_held_sample_noise
-from windahrs.core.quat import _qexp, _qmul, _qnormalize
+from windahrs.core.quat import _qexp, _qlog, _qmul, _qnormalize
 from windahrs.filters.base import Estimator
 
 if TYPE_CHECKING:
@@ -259,18 +259,6 @@ def _solve_into(L, B, n):
 
 
 @njit(**_JIT)
-def _rotvec(q0, q1, q2, q3):
-    """Log(q), the rotation vector (rad) of a unit quaternion, the shorter way round."""
-    if q0 < 0.0:
-        q0, q1, q2, q3 = -q0, -q1, -q2, -q3
-    s = math.sqrt(q1 * q1 + q2 * q2 + q3 * q3)
-    if s < 1e-12:
-        return 2.0 * q1, 2.0 * q2, 2.0 * q3
-    g = 2.0 * math.atan2(s, q0) / s
-    return g * q1, g * q2, g * q3
-
-
-@njit(**_JIT)
 def backward(cfg, prm, nom, Pr, aux, n_pad):
     """The backward pass (module docstring) over the forward record, in place: nom and Pr
     become the smoothed nominal state and covariance. Returns (N,) bool: whether sample k
@@ -320,7 +308,7 @@ def backward(cfg, prm, nom, Pr, aux, n_pad):
         # x_s(j) [-] x_prior(j)
         p0, p1, p2, p3 = xa[X_Q], -xa[X_Q + 1], -xa[X_Q + 2], -xa[X_Q + 3]
         dq = _qmul(p0, p1, p2, p3, nom[j, N_Q], nom[j, N_Q + 1], nom[j, N_Q + 2], nom[j, N_Q + 3])
-        dx[0], dx[1], dx[2] = _rotvec(dq[0], dq[1], dq[2], dq[3])
+        dx[0], dx[1], dx[2] = _qlog(dq[0], dq[1], dq[2], dq[3])
         for a in range(3):
             dx[ib + a] = nom[j, N_BG + a] - xa[X_BG + a]
             if iv >= 0:
