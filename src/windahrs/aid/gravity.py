@@ -5,10 +5,15 @@ Preprocessing: compensation of the vehicle's acceleration by GNSS velocity diffe
 (``C_bn a_gnss``) or by ``(w - b_g) x V_air`` from pitot and vanes (SPEC 3.2.2); optionally
 a first-order low-pass of the compensated specific force in an almost inertial frame (the
 running mean is rotated into each new body frame by the gyro increment, VQF's tau_acc), the
-mean then being the measurement. Gate: ``| |f| - g | < accel_norm_gate g`` (a rejected
+mean then being the measurement. With accel_lowpass_bias the mean's measurement model also
+carries the gyro bias: its samples were turned into the current body frame with the
+bias-corrected gyro, so a bias error db turned each by db integrated over its age, and the
+mean reads ``y + [y]x (dtheta + J db)`` with ``J`` (3x3, ``tau I`` at rest) rotated and
+aged with the mean by the kernel (``x[X_JLAG]``). Gate: ``| |f| - g | < accel_norm_gate g`` (a rejected
 sample logs NaN), then each innovation component within ``gate_accel`` sigmas.
 Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_noise_online,
-accel_noise_mean_start, accel_norm_gate, accel_compensation, accel_lowpass, gate_accel.
+accel_noise_mean_start, accel_norm_gate, accel_compensation, accel_lowpass,
+accel_lowpass_bias, gate_accel.
 """
 
 from __future__ import annotations
@@ -27,12 +32,16 @@ from windahrs.core.kalman import (
 )
 from windahrs.core.layout import (
     _JIT,
+    ADD_COV,
+    C_ADD,
     C_AVAR,
     C_COMP,
     C_IBA,
+    C_IBG,
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
+    R_ACC_LAGB,
     R_ACC_LP,
     R_ACC_VAR,
     R_GATE2_ACC,
@@ -41,6 +50,7 @@ from windahrs.core.layout import (
     S_AGNSS,
     S_FBAR,
     S_VAIR,
+    W_H,
     W_NU,
     X_AGNSS,
     X_AVAR,
@@ -48,6 +58,7 @@ from windahrs.core.layout import (
     X_BG,
     X_DF,
     X_FBAR,
+    X_JLAG,
     X_NAVAR,
     X_Q,
     X_VAIR,
@@ -80,6 +91,7 @@ PARAMS = (
     "accel_norm_gate",
     "accel_compensation",
     "accel_lowpass",
+    "accel_lowpass_bias",
     "gate_accel",
     "reset_timeout",
 )
@@ -133,6 +145,9 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
         fx, fy, fz = x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
         has_k = False
+        if prm[R_ACC_LAGB] > 0:
+            for i in range(9):  # the new sample carries no rotation error yet
+                x[X_JLAG + i] *= 1.0 - a
     sensor = np.int64(INN_ACCEL)
     if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
@@ -158,6 +173,20 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     var = prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
+    ib = cfg[C_IBG]
+    if flags[S_FBAR] == 1 and prm[R_ACC_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+        # the mean's samples were rotated into this body frame by the bias-corrected gyro:
+        # a bias error db turned each by its integral over the sample's age, so the mean
+        # reads y + [y]x (dtheta + J db), J = d mean / d b_g kept by the kernel (tau I at
+        # rest, and rotated with the body): H_b = [y]x J
+        H = work[W_H : W_H + 3]
+        for k in range(3):
+            r0, r1, r2 = H[k, 0], H[k, 1], H[k, 2]
+            for a in range(3):
+                H[k, ib + a] = r0 * x[X_JLAG + a] + r1 * x[X_JLAG + 3 + a] + r2 * x[X_JLAG + 6 + a]
+        for a in range(3):
+            sup[0][nsup + a] = ib + a
+        nsup = 6
     iba = cfg[C_IBA]
     if iba >= 0:  # (no accelerometer fusion in the INS; kept for the general model)
         h0, h1, h2 = h0 + x[X_BA], h1 + x[X_BA + 1], h2 + x[X_BA + 2]

@@ -113,6 +113,7 @@ from windahrs.core.layout import (
     N_WORK,
     N_X,
     NMAX,
+    R_ACC_LAGB,
     R_ACC_LP,
     R_ACC_RANGE,
     R_ACC_VAR,
@@ -194,6 +195,7 @@ from windahrs.core.layout import (
     X_DF,
     X_DW,
     X_FBAR,
+    X_JLAG,
     X_FLAST,
     X_FMAG,
     X_FV,
@@ -309,6 +311,8 @@ def _try_init(cfg, prm, x, flags, P, work):
     if prm[R_ACC_LP] > 0:
         for a in range(3):
             x[X_FBAR + a] = x[f0 + a]
+        for a in range(9):
+            x[X_JLAG + a] = 0.0
         flags[S_FBAR] = 1
     flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
@@ -339,12 +343,17 @@ def _window_add(x, flags, t, row):
 
 
 @njit(**_JIT)
-def _rotate_lowpass(x, flags, wx, wy, wz, dt):
+def _rotate_lowpass(prm, x, flags, wx, wy, wz, dt):
     """The low-passed vectors into the new body frame,
-    v <- C(Exp(w dt))^T v (w bias-corrected)."""
+    v <- C(Exp(w dt))^T v (w bias-corrected); with the gravity aid's low-pass, its bias
+    sensitivity too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`)."""
     c = _turn(wx, wy, wz, dt)
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
+        if prm[R_ACC_LAGB] > 0:
+            for j in range(3):  # each column of J, rotated like the mean
+                _rotate_cols(c, x, np.int64(X_JLAG + j))
+                x[X_JLAG + 4 * j] += dt
     if flags[S_MBAR] == 1:
         _rotate_into(c, x, np.int64(X_MBAR))
 
@@ -354,6 +363,15 @@ def _turn(wx, wy, wz, dt):
     """C(Exp(w dt)), row-major: the body's turn over one IMU step at the rate w."""
     e = _qexp(wx * dt, wy * dt, wz * dt)
     return _dcm9(e[0], e[1], e[2], e[3])
+
+
+@njit(inline="always", **_JIT)
+def _rotate_cols(c, x, i0):
+    """x[i0], x[i0+3], x[i0+6] (a column of a row-major 3x3) <- C^T of it (c: C row-major)."""
+    v0, v1, v2 = x[i0], x[i0 + 3], x[i0 + 6]
+    x[i0] = c[0] * v0 + c[3] * v1 + c[6] * v2
+    x[i0 + 3] = c[1] * v0 + c[4] * v1 + c[7] * v2
+    x[i0 + 6] = c[2] * v0 + c[5] * v1 + c[8] * v2
 
 
 @njit(**_JIT)
@@ -414,7 +432,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
         if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
-            _rotate_lowpass(x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+            _rotate_lowpass(prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
         if cfg[C_ADD] == 1:
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
@@ -792,6 +810,7 @@ def make_state(
     prm[R_REST_MIN_T] = p.rest_min_time
     prm[R_REST_VAR] = p.rest_bias_sigma**2
     prm[R_REST_CLIP] = p.rest_bias_clip
+    prm[R_ACC_LAGB] = 1.0 if p.accel_lowpass_bias else 0.0
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n

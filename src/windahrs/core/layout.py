@@ -184,7 +184,8 @@ R_REST_TAU = 67  # rest_tau, s
 R_REST_MIN_T = 68  # rest_min_time, s
 R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
 R_REST_CLIP = 70  # rest_bias_clip, rad/s
-N_PRM = 71
+R_ACC_LAGB = 71  # accel_lowpass_bias: 1 the low-passed gravity measurement carries its gyro-bias columns
+N_PRM = 72
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -227,7 +228,9 @@ X_RF = X_AVAR + 27  # (3,) low-passed specific force, m/s^2 (aid.rest)
 X_RN = X_AVAR + 30  # samples in those low-passes (0: not started)
 X_TREST = X_AVAR + 31  # when the current rest began, s (NaN: moving)
 X_TRFUSE = X_AVAR + 32  # when the rest measurement was last fused, s
-N_X = X_AVAR + 33
+X_JLAG = X_AVAR + 33  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
+#   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
+N_X = X_AVAR + 42
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
