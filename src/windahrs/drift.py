@@ -89,6 +89,15 @@ def _at(t: F64, t_est: F64) -> NDArray[np.int64]:
     return np.clip(np.searchsorted(t_est, t, side="left"), 0, len(t_est) - 1)
 
 
+def _initialised_at(est: Estimate) -> float:
+    """The time of the estimate's first initialised sample, s (its covariance's first finite
+    row; the first sample for an estimate without a covariance)."""
+    if est.cov is None or len(est.cov) == 0:
+        return float(est.t[0])
+    ok = np.isfinite(est.cov[:, 0, 0])
+    return float(est.cov_t[int(np.argmax(ok))]) if ok.any() else math.inf
+
+
 def mag_drift_share(est: Estimate, flight: Flight, tau: float = MAG_DRIFT_TAU) -> tuple[F64, F64]:
     """The magnetometer's times (K,) s and, at each, how far the low-passed body-frame field
     residual has moved from its constant part, as a share of the reference norm (NaN before
@@ -98,7 +107,7 @@ def mag_drift_share(est: Estimate, flight: Flight, tau: float = MAG_DRIFT_TAU) -
     if m is None or len(est.t) == 0:
         return np.empty(0), np.empty(0)
     q = est.q_nb[_at(m.t, est.t)]
-    ok = np.isfinite(q).all(axis=1) & np.isfinite(m.mag_b).all(axis=1)
+    ok = np.isfinite(q).all(axis=1) & np.isfinite(m.mag_b).all(axis=1) & (m.t >= _initialised_at(est))
     share = np.full(len(m.t), np.nan)
     if ok.sum() < 2:
         return m.t, share
@@ -143,7 +152,7 @@ def air_drift_residual(est: Estimate, flight: Flight, window: float = AIR_DRIFT_
     x_n = quat_rotate(est.q_nb[_at(tg[:-1], est.t)], np.array([1.0, 0.0, 0.0]))
     along = np.r_[0.0, np.cumsum(np.einsum("ij,ij->i", x_n, np.diff(v, axis=0)))]
     along[1:][~np.isfinite(along[1:])] = np.nan
-    aok = np.isfinite(air.tas)
+    aok = np.isfinite(air.tas) & (air.t >= _initialised_at(est))
     ta, tas = air.t[aok], air.tas[aok]
     inside = (ta >= tg[0]) & (ta <= tg[-1])
     ta, tas = ta[inside], tas[inside]
