@@ -295,3 +295,26 @@ def test_repair_times_of_a_csv_flight(tmp_path: Path, rng: np.random.Generator) 
 def test_repair_times_are_validated(times: object, match: str) -> None:
     with pytest.raises(FlightError, match=match):
         Flight.from_arrays(*raw_imu()[:3]).replace(repair_times=times)
+
+
+def test_repair_log_locates_a_series_before_a_reader_drops_rows() -> None:
+    """A reader that drops rows after cleaning (DataFlash's GNSS without a fix) locates the
+    series first; rows set to NaN afterwards are located on the stream the Flight holds."""
+    from windahrs.flight import GnssStream
+
+    rep = RepairLog()
+    t_us = np.array([0, 100_000, 100_000, 300_000, 200_000, 400_000, 500_000])
+    t_us, (fix,) = rep.series("gnss", t_us, np.array([1, 1, 1, 0, 1, 1, 1]))
+    sec = t_us * 1e-6
+    rep.locate("gnss", sec)
+    ok = fix == 1  # the 0.3 s row has no fix: dropped
+    v = np.zeros((int(ok.sum()), 3))
+    v[-1, 0] = 1e4  # beyond the GNSS range: NaN
+    gnss = GnssStream(t=sec[ok], v_n=rep.rows("gnss", v, 500.0))
+    t, g, a, _ = raw_imu(200)
+    f = rep.attach(Flight(imu=ImuStream(t=t, w_b=g, f_b=a), gnss=gnss, repairs=rep.counts))
+    where = f.repair_times["gnss"]
+    np.testing.assert_allclose(where["duplicates"], [0.1])
+    np.testing.assert_allclose(where["reordered"], [0.2, 0.3])
+    np.testing.assert_allclose(where["out_of_range"], [0.5])
+    assert f.repairs == {"gnss": {"reordered": 2, "duplicates": 1, "out_of_range": 1}}
