@@ -213,3 +213,53 @@ def test_flags_are_built_when_first_read_and_equal_the_eager_ones(fixedwing: Fli
     np.testing.assert_array_equal(first, estimate_flags(est, fixedwing))
     again = pickle.loads(pickle.dumps(wa.estimator("ins-wind").run(fixedwing)))  # (Dask pickles Estimates)
     np.testing.assert_array_equal(again.flags, first)
+
+
+def test_repaired_stamps_and_values_are_flagged_where_they_were(fixedwing: Flight, tmp_path: object) -> None:
+    from windahrs.io import read_flight
+
+    faults = [F.DuplicateStamps(start=10.0, duration=5.0, count=3), F.OutOfOrder(start=18.0, duration=5.0, count=2),
+              F.DuplicateStamps(start=12.0, duration=5.0, count=2, stream="mag")]
+    raw = F.inject_raw(fixedwing, faults, seed=2)
+    k = int(np.searchsorted(raw.imu["t"], 25.0))
+    raw.imu["w_b"][k, 0] = np.inf  # one value the edge sets to NaN
+    repaired = read_flight(raw.write_csv_dir(f"{tmp_path}/rec"))
+    where = repaired.repair_times
+    assert len(where["imu"]["duplicates"]) == 3 and len(where["imu"]["reordered"]) == 4
+    assert len(where["mag"]["duplicates"]) == 2 and len(where["imu"]["infinite"]) == 1
+    est = _quiet_run("ins-wind", repaired)
+    assert est.flags is not None
+    stamps = est.t[(est.flags & _bit("stamps_repaired")) != 0]
+    expected = np.concatenate([where["imu"]["duplicates"], where["imu"]["reordered"], where["mag"]["duplicates"]])
+    assert len(stamps) >= 5 and all(np.min(np.abs(stamps[:, None] - expected), axis=1) < 0.01)
+    assert np.all((stamps >= 10.0) & (stamps <= 23.0))
+    values = est.t[(est.flags & _bit("values_repaired")) != 0]
+    assert len(values) == 1 and abs(values[0] - where["imu"]["infinite"][0]) < 0.01
+    clean = _quiet_run("ins-wind", fixedwing)
+    assert clean.flags is not None and not any(clean.flags & (_bit("stamps_repaired") | _bit("values_repaired")))
+
+
+@pytest.fixture(scope="module")
+def fixedwing60() -> Flight:
+    return wa.simulate("fixedwing", seed=3, wind=8.0, duration=60.0)
+
+
+@pytest.mark.parametrize("spec", ["ins-wind", "mekf"])
+def test_a_drifting_field_is_flagged_and_a_clean_one_is_not(fixedwing60: Flight, spec: str) -> None:
+    faulty = F.inject(fixedwing60, [F.MagDrift(start=25.0, duration=30.0)], seed=0)
+    est = _quiet_run(spec, faulty)
+    assert est.flags is not None
+    on = est.t[(est.flags & _bit("mag_drift")) != 0]
+    assert len(on) and 30.0 < on[0] < 45.0 and on[-1] < 60.0
+    clean = _quiet_run(spec, fixedwing60)
+    assert clean.flags is not None and not any(clean.flags & (_bit("mag_drift") | _bit("air_drift")))
+
+
+def test_a_ramping_pitot_is_flagged(fixedwing60: Flight) -> None:
+    # both ports blocked in a 4.5 m/s climb at 15 m/s: about 3 m/s per s (sim.faults.PitotBlockage)
+    faulty = F.inject(fixedwing60, [F.PitotBlockage(start=25.0, duration=10.0, mode="ramp", rate=3.0)], seed=0)
+    est = _quiet_run("ins-wind", faulty)
+    assert est.flags is not None
+    on = est.t[(est.flags & _bit("air_drift")) != 0]
+    assert len(on) and 25.0 < on[0] < 35.0
+    assert not any(est.flags[est.t < 25.0] & _bit("air_drift"))

@@ -252,3 +252,69 @@ def test_real_ulog_truncated_copy(tmp_path: Path) -> None:
     assert 0 < f.meta["ulog.truncated_bytes"] < 65536 + 3  # at most one message
     assert 0 < len(f.imu.t) < len(whole.imu.t)
     np.testing.assert_array_equal(f.imu.w_b, whole.imu.w_b[: len(f.imu.t)])
+
+
+def test_repair_times_say_where_and_are_saved(tmp_path: Path) -> None:
+    f = Flight.from_arrays(*glitched())
+    t0 = raw_imu()[0]
+    where = f.repair_times["imu"]
+    assert set(where) == set(EXPECTED_IMU) and all(len(where[k]) == n for k, n in EXPECTED_IMU.items())
+    np.testing.assert_array_equal(where["duplicates"], t0[[100]])  # the kept row of the repeat
+    np.testing.assert_array_equal(where["reordered"], t0[[301, 302]])  # the swapped rows, in place
+    np.testing.assert_array_equal(where["out_of_range"], t0[[500, 700]])
+    np.testing.assert_array_equal(where["infinite"], t0[[900]])
+    back = load_flight(save_flight(f, tmp_path / "f.h5"))
+    assert back.repair_times.keys() == f.repair_times.keys()
+    for k, v in f.repair_times["imu"].items():
+        np.testing.assert_array_equal(back.repair_times["imu"][k], v)
+    clean = Flight.from_arrays(*raw_imu())
+    assert clean.repair_times == {} and load_flight(save_flight(clean, tmp_path / "c.h5")).repair_times == {}
+
+
+def test_repair_times_of_a_csv_flight(tmp_path: Path, rng: np.random.Generator) -> None:
+    d = write_csv_dir(make_flight(rng), tmp_path / "rec")
+    glitch_csv(d)
+    f = read_flight(d)
+    where = f.repair_times["imu"]
+    assert {k: len(v) for k, v in where.items()} == {"reordered": 2, "duplicates": 1, "out_of_range": 1}
+    np.testing.assert_array_equal(where["out_of_range"], f.imu.t[[50]])
+    np.testing.assert_array_equal(where["reordered"], f.imu.t[[29, 30]])
+    np.testing.assert_array_equal(where["duplicates"], f.imu.t[[19]])
+
+
+@pytest.mark.parametrize(
+    ("times", "match"),
+    [
+        ({"imu": {"spikes": [1.0]}}, "kinds among"),
+        ({"engine": {"duplicates": [1.0]}}, "streams among"),
+        ({"imu": {"duplicates": [np.nan]}}, "finite times"),
+        ({"imu": {"duplicates": [[1.0, 2.0]]}}, "1-D array"),
+        ({"imu": [1.0]}, "a dict kind -> times"),
+    ],
+)
+def test_repair_times_are_validated(times: object, match: str) -> None:
+    with pytest.raises(FlightError, match=match):
+        Flight.from_arrays(*raw_imu()[:3]).replace(repair_times=times)
+
+
+def test_repair_log_locates_a_series_before_a_reader_drops_rows() -> None:
+    """A reader that drops rows after cleaning (DataFlash's GNSS without a fix) locates the
+    series first; rows set to NaN afterwards are located on the stream the Flight holds."""
+    from windahrs.flight import GnssStream
+
+    rep = RepairLog()
+    t_us = np.array([0, 100_000, 100_000, 300_000, 200_000, 400_000, 500_000])
+    t_us, (fix,) = rep.series("gnss", t_us, np.array([1, 1, 1, 0, 1, 1, 1]))
+    sec = t_us * 1e-6
+    rep.locate("gnss", sec)
+    ok = fix == 1  # the 0.3 s row has no fix: dropped
+    v = np.zeros((int(ok.sum()), 3))
+    v[-1, 0] = 1e4  # beyond the GNSS range: NaN
+    gnss = GnssStream(t=sec[ok], v_n=rep.rows("gnss", v, 500.0))
+    t, g, a, _ = raw_imu(200)
+    f = rep.attach(Flight(imu=ImuStream(t=t, w_b=g, f_b=a), gnss=gnss, repairs=rep.counts))
+    where = f.repair_times["gnss"]
+    np.testing.assert_allclose(where["duplicates"], [0.1])
+    np.testing.assert_allclose(where["reordered"], [0.2, 0.3])
+    np.testing.assert_allclose(where["out_of_range"], [0.5])
+    assert f.repairs == {"gnss": {"reordered": 2, "duplicates": 1, "out_of_range": 1}}

@@ -310,10 +310,11 @@ def _cmd_faults(args: argparse.Namespace) -> int:
         _note(f"not run: {note}")
     n = len(res.rows)
     flagged = sum(r.flagged for r in res.rows)
+    in_span = sum(r.flagged_span for r in res.rows)
     recovered = sum(r.recover_s is not None and r.recover_s <= 10.0 for r in res.rows)
     nans = sum(r.nan_count > 0 for r in res.rows)
-    print(f"{n} runs: {flagged} flagged within 1 s, {recovered} back under twice the pre-fault RMS within 10 s, "
-          f"{nans} with NaN in the estimate")
+    print(f"{n} runs: {flagged} flagged within 1 s ({in_span} within the fault's span), {recovered} back under "
+          f"twice the pre-fault RMS within 10 s, {nans} with NaN in the estimate")
     print(f"wrote {args.out / 'faults.md'}")
     print(f"wrote {args.out / 'faults.json'}")
     return 0

@@ -22,7 +22,14 @@ when GNSS is lost), else on the IMU alone.
 The flight's own samples add what no estimator decides: a sensor **stuck** (repeating its
 sample exactly for :data:`STUCK_S`), an IMU axis **clipped** (holding one large magnitude), a
 magnetic field whose norm is off the reference's by more than :data:`MAG_NORM_SHARE`
-(**disturbed**, whatever the estimator's own checks are set to).
+(**disturbed**, whatever the estimator's own checks are set to). The edge's repairs
+(``Flight.repair_times``, :mod:`windahrs.repair`) mark the IMU sample nearest each repaired
+row of any stream: **stamps repaired** (a repeated stamp dropped, a row out of order
+sorted), **values repaired** (a row set to NaN: infinite, or beyond the sensor's range).
+The slow faults no sample shows (:mod:`windahrs.drift`) are tested on the whole flight
+with the estimate's attitude: a magnetometer **drifting** from the field the attitude
+predicts in the body, an airspeed **drifting** from what the GNSS velocity along the nose
+says (a blocked pitot's ramp).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from numpy.typing import NDArray
 
 from windahrs.core.imu_screen import CLIP_F, CLIP_SAMPLES, CLIP_W
 from windahrs.core.layout import SENSOR_STREAMS, SENSORS
+from windahrs.drift import air_drift, mag_drift
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
 
@@ -64,6 +72,10 @@ FLAGS: dict[str, tuple[int, str]] = {
     "air_stuck": (18, "airspeed or a vane repeats its value exactly (blocked pitot, stuck vane)"),
     "imu_clipped": (19, "an IMU axis held at one large value (saturated)"),
     "imu_jitter": (20, "IMU sample step more than a quarter period off the median (stamps taken on receipt?)"),
+    "stamps_repaired": (21, "a time stamp repaired at the edge: a repeated stamp dropped or a row out of order sorted"),
+    "values_repaired": (22, "a sample set to NaN at the edge (infinite, or beyond the sensor's range)"),
+    "mag_drift": (23, "magnetic field in the body drifting from what the attitude predicts (slow disturbance)"),
+    "air_drift": (24, "airspeed changing unlike the GNSS velocity along the nose (a blocked or drifting pitot)"),
 }
 #: A sensor repeating its sample exactly for at least this long, s (and STUCK_SAMPLES samples),
 #: is stuck: the noise of MEMS inertial and magnetic sensors and of pitot and vane transducers
@@ -143,6 +155,18 @@ def _points(t_events: F64, t: F64) -> NDArray[np.bool_]:
     if len(t_events) and len(t):
         out[np.clip(np.searchsorted(t, t_events, side="left"), 0, len(t) - 1)] = True
     return out
+
+
+def _points_within(t_events: F64, t: F64, lim: float) -> NDArray[np.bool_]:
+    """:func:`_points` of the events within ``lim`` s of the samples' span (an event far
+    outside it, on a stream that runs longer than the IMU, marks nothing)."""
+    if len(t) == 0:
+        return np.zeros(0, dtype=bool)
+    return _points(t_events[(t_events >= t[0] - lim) & (t_events <= t[-1] + lim)], t)
+
+
+#: The repair kinds per flag (windahrs.repair.REPAIR_KINDS; "unsortable" rows have no time).
+_REPAIRED = {"stamps_repaired": ("reordered", "duplicates"), "values_repaired": ("infinite", "out_of_range")}
 
 
 def _stream_rows(flight: Flight, name: str) -> tuple[F64, NDArray[np.bool_]] | None:
@@ -265,6 +289,20 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
     for name, (ts, on) in stream_flags(flight).items():  # onto the estimate's samples
         if on.any():
             put(name, _holding(ts, on, t, lims.get(name.split("_")[0]) or absent_after(ts)))
+    lim_imu = lims.get("imu", ABSENT_MIN_S)
+    for name, kinds in _REPAIRED.items():
+        for per in flight.repair_times.values():
+            for kind in kinds:
+                if kind in per:
+                    put(name, _points_within(per[kind], t, lim_imu))
+    if flight.mag is not None:
+        tm, on = mag_drift(est, flight)
+        if on.any():
+            put("mag_drift", _holding(tm, on, t, lims.get("mag") or absent_after(tm)))
+    if flight.air is not None and flight.gnss is not None:
+        ta, on = air_drift(est, flight)
+        if on.any():
+            put("air_drift", _holding(ta, on, t, lims.get("air") or absent_after(ta)))
     if est.cov is not None and len(t):  # (the covariance is NaN until initialisation)
         ok = np.isfinite(est.cov[:, 0, 0])
         first = int(est.cov_rows[np.argmax(ok)]) if ok.any() else len(t)

@@ -418,6 +418,10 @@ class Flight:
     the edge repaired in the input (:mod:`windahrs.repair`), stream name -> kind
     (:data:`~windahrs.repair.REPAIR_KINDS`) -> count, e.g. ``{"imu": {"duplicates": 2}}``;
     empty when nothing was repaired (and for a Flight built from its constructors).
+    repair_times: where, stream name -> kind -> (K,) times s (sorted) of the rows repaired
+    (:mod:`windahrs.repair`: a sorted row's new place, the kept row of a dropped repeat, a
+    row set to NaN), what the flags ``stamps_repaired`` and ``values_repaired`` mark; may
+    be empty while ``repairs`` is not (a Flight saved before it existed, rows without a time).
     """
 
     imu: ImuStream
@@ -430,6 +434,7 @@ class Flight:
     site: Site = field(default_factory=Site)
     meta: dict[str, Any] = field(default_factory=dict)
     repairs: dict[str, dict[str, int]] = field(default_factory=dict)
+    repair_times: dict[str, dict[str, F64]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         types = {
@@ -452,6 +457,7 @@ class Flight:
             if not isinstance(k, str) or not isinstance(v, str | int | float | bool):
                 raise FlightError(f"meta[{k!r}]", "str, int, float or bool", type(v).__name__)
         _set(self, "repairs", _check_repairs(self.repairs))
+        _set(self, "repair_times", _check_repair_times(self.repair_times))
 
     @classmethod
     def from_arrays(
@@ -570,13 +576,15 @@ class Flight:
                 ("gyro", g, GYRO_RANGE, "rad/s"), ("accel", a, ACCEL_RANGE, "m/s^2"), ("mag", m, MAG_RANGE, "T")
             ):
                 _check_range(name, x, limit, unit)
-        return cls(
-            imu=imu,
-            mag=mag_stream,
-            reference=ref,
-            site=site if site is not None else Site(),
-            meta={"source": "arrays", **extra_meta, **(meta or {})},
-            repairs=log.counts,
+        return log.attach(
+            cls(
+                imu=imu,
+                mag=mag_stream,
+                reference=ref,
+                site=site if site is not None else Site(),
+                meta={"source": "arrays", **extra_meta, **(meta or {})},
+                repairs=log.counts,
+            )
         )
 
     @property
@@ -735,3 +743,34 @@ def _missing_text(stream: object) -> str:
         missing |= ~np.isfinite(a.reshape(rows, -1)).all(axis=1)
     n = int(missing.sum())
     return f", {n} missing" if n else ""
+
+
+def _check_repair_times(times: object) -> dict[str, dict[str, F64]]:
+    """``Flight.repair_times`` validated: streams and kinds as ``repairs``', each (K,) finite
+    times s, returned sorted as float64; empty arrays and streams left out."""
+    if not isinstance(times, dict):
+        raise FlightError("repair_times", "a dict stream -> {kind: times}", type(times).__name__)
+    out: dict[str, dict[str, F64]] = {}
+    for stream, kinds in times.items():
+        if stream not in REPAIRABLE:
+            raise FlightError("repair_times", f"streams among {REPAIRABLE}", repr(stream))
+        if not isinstance(kinds, dict):
+            raise FlightError(f"repair_times[{stream!r}]", "a dict kind -> times", type(kinds).__name__)
+        kept: dict[str, F64] = {}
+        for kind, v in kinds.items():
+            where = f"repair_times[{stream!r}][{kind!r}]"
+            if kind not in REPAIR_KINDS:
+                raise FlightError(f"repair_times[{stream!r}]", f"kinds among {REPAIR_KINDS}", repr(kind))
+            try:
+                a = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise FlightError(where, "an array of times (s)", type(v).__name__) from None
+            if a.ndim != 1:
+                raise FlightError(where, "a 1-D array of times (s)", f"shape {a.shape}")
+            if not np.isfinite(a).all():
+                raise FlightError(where, "finite times (s)", "a non-finite value")
+            if len(a):
+                kept[kind] = np.sort(a)
+        if kept:
+            out[stream] = kept
+    return out

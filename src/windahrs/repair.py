@@ -24,6 +24,14 @@ kind               what is done
                    the stream's validation to refuse with its hint
 =================  ========================================================================
 
+Where: besides the counts, the times of the repaired rows (s, on the flight's clock) are
+kept in ``Flight.repair_times`` (stream -> kind -> times): for ``reordered`` the rows moved
+by the sort, at their new place; for ``duplicates`` the kept row each dropped one repeated;
+for ``infinite`` and ``out_of_range`` the rows set to NaN. ``unsortable`` rows have no time.
+:class:`RepairLog` records the rows' places as it repairs and :meth:`RepairLog.attach` turns
+them into times on the Flight the reader built; the per-sample flags ``stamps_repaired``
+and ``values_repaired`` (:mod:`windahrs.flags`) mark them.
+
 The Flight's own constructors repair nothing: they refuse unsorted or repeated time stamps
 and infinite values, and check units on the bulk of the data (the same
 :func:`is_bulk` rule), so a record is never changed behind its author's back; a
@@ -37,12 +45,15 @@ slightly beyond the full scale and is still a measurement.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.conventions import DEG, G0
+
+if TYPE_CHECKING:
+    from windahrs.flight import Flight
 
 __all__ = [
     "ACCEL_RANGE",
@@ -125,9 +136,20 @@ def clean_series(
     place) and ``duplicates`` (repeated stamps dropped, keeping the first row in the file:
     the sort is stable).
     """
+    t, vals, counts, _ = _clean_series(t, *values)
+    return t, vals, counts
+
+
+def _clean_series(
+    t: NDArray[Any], *values: NDArray[Any]
+) -> tuple[NDArray[Any], list[NDArray[Any]], dict[str, int], dict[str, NDArray[np.int64]]]:
+    """:func:`clean_series`, and the places in the cleaned series of the rows each kind
+    touched (``reordered``: the moved rows; ``duplicates``: the row each dropped one
+    repeated; may repeat a place)."""
     t = np.asarray(t)
     vals = [np.asarray(v) for v in values]
     counts = dict.fromkeys(("unsortable", "reordered", "duplicates"), 0)
+    moved = np.empty(0, dtype=np.int64)
     if t.dtype.kind == "f" and not np.isfinite(t).all():
         ok = np.isfinite(t)
         counts["unsortable"] = int(np.count_nonzero(~ok))
@@ -135,17 +157,21 @@ def clean_series(
         vals = [v[ok] for v in vals]
     if t.size > 1 and (np.diff(t) < 0).any():
         order = np.argsort(t, kind="stable")
-        counts["reordered"] = int(np.count_nonzero(order != np.arange(t.size)))
+        moved = np.flatnonzero(order != np.arange(t.size))
+        counts["reordered"] = len(moved)
         t = t[order]
         vals = [v[order] for v in vals]
     keep = np.ones(t.size, dtype=bool)
     if t.size > 1:
         keep[1:] = np.diff(t) != 0
     counts["duplicates"] = int(t.size - np.count_nonzero(keep))
+    where = {"reordered": moved, "duplicates": np.flatnonzero(~keep)}
     if counts["duplicates"]:
+        place = np.cumsum(keep) - 1  # a row's place once the repeats are dropped (a repeat: its kept row's)
+        where = {k: place[v] for k, v in where.items()}
         t = t[keep]
         vals = [v[keep] for v in vals]
-    return t, vals, counts
+    return t, vals, counts, where
 
 
 def finite_rows(a: NDArray[Any]) -> F64:
@@ -176,14 +202,53 @@ def is_bulk(over: NDArray[np.bool_], share: float) -> bool:
 
 
 class RepairLog:
-    """Counts of repairs per stream and kind, as a reader builds a Flight.
+    """Counts of repairs per stream and kind, as a reader builds a Flight, and where they
+    were.
 
     ``counts``: stream name -> kind (:data:`REPAIR_KINDS`) -> count, non-zero counts only:
-    the value of ``Flight.repairs``.
+    the value of ``Flight.repairs``. The places of the repaired rows (in the stream's
+    cleaned series, and in the arrays given to :meth:`rows`) are kept until
+    :meth:`attach` turns them into ``Flight.repair_times``; a reader that drops rows of a
+    stream after :meth:`series` calls :meth:`locate` with the series' times first.
     """
 
     def __init__(self) -> None:
         self.counts: dict[str, dict[str, int]] = {}
+        self._places: dict[str, dict[str, list[NDArray[np.int64]]]] = {}  # not yet located
+        self._times: dict[str, dict[str, list[F64]]] = {}
+
+    def _keep(self, stream: str, kind: str, places: NDArray[np.int64]) -> None:
+        if len(places):
+            self._places.setdefault(stream, {}).setdefault(kind, []).append(np.asarray(places, dtype=np.int64))
+
+    def locate(self, stream: str, t: F64) -> None:
+        """Turn the places kept for ``stream`` into times: ``t`` (s, on the flight's clock)
+        is the stream's series as cleaned, row for row."""
+        t = np.asarray(t, dtype=np.float64)
+        for kind, places in self._places.pop(stream, {}).items():
+            p = np.concatenate(places)
+            p = p[(p >= 0) & (p < len(t))]
+            self._times.setdefault(stream, {}).setdefault(kind, []).append(t[p])
+
+    def times(self) -> dict[str, dict[str, F64]]:
+        """The located times per stream and kind (sorted, unique), the value of
+        ``Flight.repair_times``."""
+        return {
+            stream: {kind: np.unique(np.concatenate(v)) for kind, v in kinds.items()}
+            for stream, kinds in self._times.items()
+        }
+
+    def attach(self, flight: Flight) -> Flight:
+        """``flight`` (a :class:`~windahrs.flight.Flight` whose streams hold, row for row,
+        the series and rows this log repaired) with ``repair_times``: the places not yet
+        located are located on its streams' times."""
+        for stream in list(self._places):
+            part = getattr(flight, stream, None)
+            if part is not None:
+                self.locate(stream, part.t)
+        self._places.clear()
+        found = self.times()
+        return flight.replace(repair_times=found) if found else flight
 
     def add(self, stream: str, kind: str, n: int) -> None:
         """Count ``n`` repairs of ``kind`` on ``stream`` (nothing for 0)."""
@@ -197,9 +262,12 @@ class RepairLog:
         self, stream: str, t: NDArray[Any], *values: NDArray[Any]
     ) -> tuple[NDArray[Any], list[NDArray[Any]]]:
         """:func:`clean_series`, counted on ``stream``."""
-        t, vals, counts = clean_series(t, *values)
+        t, vals, counts, where = _clean_series(t, *values)
         for kind, n in counts.items():
             self.add(stream, kind, n)
+        self._places.pop(stream, None)  # (places of an earlier series of the stream: not of this one)
+        for kind, places in where.items():
+            self._keep(stream, kind, places)
         return t, vals
 
     def rows(self, stream: str, a: NDArray[Any], limit: float | None = None) -> F64:
@@ -209,13 +277,16 @@ class RepairLog:
         slip, left as they are for the stream's validation to refuse)."""
         out = np.array(a, dtype=np.float64)
         x = out if out.ndim == 2 else out.reshape(len(out), 1)  # a view: edits reach out
-        self.add(stream, "infinite", int(np.count_nonzero(np.isinf(x).any(axis=1))))
+        inf = np.isinf(x).any(axis=1)
+        self.add(stream, "infinite", int(np.count_nonzero(inf)))
+        self._keep(stream, "infinite", np.flatnonzero(inf))
         x[~np.isfinite(x).all(axis=1)] = np.nan
         if limit is not None:
             over, share = beyond_range(x, limit)
             if not is_bulk(over, share):
                 x[over] = np.nan
                 self.add(stream, "out_of_range", int(np.count_nonzero(over)))
+                self._keep(stream, "out_of_range", np.flatnonzero(over))
         return out
 
 

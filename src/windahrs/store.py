@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 
 import h5py
 import numpy as np
+from numpy.typing import NDArray
 
 from windahrs.flight import (
     AirDataStream,
@@ -32,6 +33,8 @@ from windahrs.flight import (
     WindStream,
 )
 
+F64 = NDArray[np.float64]
+
 __all__ = [
     "FLIGHT_FORMAT",
     "FLIGHT_VERSION",
@@ -43,10 +46,12 @@ __all__ = [
     "load_flight",
     "read_errors",
     "read_record",
+    "read_repair_times",
     "read_repairs",
     "save_flight",
     "write_bytes",
     "write_record",
+    "write_repair_times",
     "write_repairs",
 ]
 
@@ -224,6 +229,7 @@ def save_flight(flight: Flight, path: str | os.PathLike[str]) -> Path:
         for k, v in flight.meta.items():
             meta.attrs[k] = v
         write_repairs(f, flight.repairs)
+        write_repair_times(f, flight.repair_times)
     return Path(path)
 
 
@@ -243,6 +249,31 @@ def read_repairs(f: h5py.Group) -> dict[str, dict[str, int]]:
     if not isinstance(g, h5py.Group):
         return {}
     return {stream: {k: int(_plain(v)) for k, v in sub.attrs.items()} for stream, sub in g.items()}
+
+
+def write_repair_times(f: h5py.Group, times: dict[str, dict[str, F64]]) -> None:
+    """``times`` (stream -> kind -> times s) as group ``repair_times``: one subgroup per
+    stream, one dataset per kind (nothing when empty)."""
+    if not times:
+        return
+    g = f.create_group("repair_times")
+    for stream, kinds in times.items():
+        sub = g.create_group(stream)
+        for kind, t in kinds.items():
+            sub.create_dataset(kind, data=np.asarray(t, dtype=np.float64))
+
+
+def read_repair_times(f: h5py.Group) -> dict[str, dict[str, F64]]:
+    """Inverse of :func:`write_repair_times`; empty for files written before it existed."""
+    g = f.get("repair_times")
+    if not isinstance(g, h5py.Group):
+        return {}
+    out: dict[str, dict[str, F64]] = {}
+    for stream, sub in g.items():
+        if not isinstance(sub, h5py.Group):
+            raise StoreError(f"/repair_times/{stream}: expected a group, found {type(sub).__name__}")
+        out[stream] = {kind: np.asarray(d[()], dtype=np.float64) for kind, d in sub.items()}
+    return out
 
 
 @contextlib.contextmanager
@@ -285,7 +316,7 @@ def load_flight(path: str | os.PathLike[str]) -> Flight:
                 raise StoreError(f"{path}:/{name}: expected a group, found {type(group).__name__}")
             parts[name] = read_record(group, cls, f"{path}:/{name}")
         meta = {k: _plain(v) for k, v in f["meta"].attrs.items()} if "meta" in f else {}
-        return Flight(**parts, meta=meta, repairs=read_repairs(f))
+        return Flight(**parts, meta=meta, repairs=read_repairs(f), repair_times=read_repair_times(f))
 
 
 @contextlib.contextmanager

@@ -163,10 +163,12 @@ def read_ansfl(path: str | os.PathLike[str], *, imu: int | None = None, gnss: bo
         if gnss:
             v_n = velocity_from_positions(t_gt, _stack(v_gt, _GT_POSITION))
             gnss_stream = GnssStream(t=t_gt, v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE))
-        return Flight(
-            imu=ImuStream(t=t_imu, w_b=w_flu @ P_FLU_FRD.T, f_b=f_flu @ P_FLU_FRD.T),
-            gnss=gnss_stream,
-            reference=Reference(t=t_gt, q_nb=q, kind="autopilot", heading_free=True),
-            meta=meta,
-            repairs=rep.counts,
+        return rep.attach(
+            Flight(
+                imu=ImuStream(t=t_imu, w_b=w_flu @ P_FLU_FRD.T, f_b=f_flu @ P_FLU_FRD.T),
+                gnss=gnss_stream,
+                reference=Reference(t=t_gt, q_nb=q, kind="autopilot", heading_free=True),
+                meta=meta,
+                repairs=rep.counts,
+            )
         )

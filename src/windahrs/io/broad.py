@@ -84,21 +84,25 @@ def read_broad(
         meta["reference.invalid_quaternions"] = n_bad
     rep = RepairLog()
     with flight_errors_name(p):
-        return Flight(
-            imu=ImuStream(
-                t=t, w_b=rep.rows("imu", raw["imu_gyr"], GYRO_RANGE), f_b=rep.rows("imu", raw["imu_acc"], ACCEL_RANGE)
-            ),
-            mag=MagStream(t=t, mag_b=rep.rows("mag", raw["imu_mag"] * _MICROTESLA, MAG_RANGE)),
-            reference=Reference(
-                t=t,
-                q_nb=q_ned,
-                kind="mocap",
-                heading_free=True,
-                mask=movement if score == "movement" else None,
-            ),
-            site=Site(mag_n=None),
-            meta=meta,
-            repairs=rep.counts,
+        return rep.attach(
+            Flight(
+                imu=ImuStream(
+                    t=t,
+                    w_b=rep.rows("imu", raw["imu_gyr"], GYRO_RANGE),
+                    f_b=rep.rows("imu", raw["imu_acc"], ACCEL_RANGE),
+                ),
+                mag=MagStream(t=t, mag_b=rep.rows("mag", raw["imu_mag"] * _MICROTESLA, MAG_RANGE)),
+                reference=Reference(
+                    t=t,
+                    q_nb=q_ned,
+                    kind="mocap",
+                    heading_free=True,
+                    mask=movement if score == "movement" else None,
+                ),
+                site=Site(mag_n=None),
+                meta=meta,
+                repairs=rep.counts,
+            )
         )
 
 

@@ -294,6 +294,7 @@ def _seconds(
         sec = (t * scale_ns - origin_ns).astype(np.float64) * 1e-9
     else:
         sec = t * (scale_ns * 1e-9) - origin_ns * 1e-9
+    rep.locate(name, sec)
     return sec, dict(zip(keys, vals, strict=True))
 
 
@@ -451,9 +452,11 @@ def read_alfa(
                 w_enu = -w_enu
             meta["ref_wind.negated"] = wind_points_from
             ref_wind = WindStream(t=t, wind_n=vec_enu_to_ned(w_enu))
-        return Flight(
-            imu=imu, mag=mag, gnss=gnss, air=air, reference=reference, ref_wind=ref_wind,
-            meta=meta, repairs=rep.counts,
+        return rep.attach(
+            Flight(
+                imu=imu, mag=mag, gnss=gnss, air=air, reference=reference, ref_wind=ref_wind,
+                meta=meta, repairs=rep.counts,
+            )
         )
 
 
@@ -602,7 +605,7 @@ def read_csv_dir(dirpath: str | os.PathLike[str]) -> Flight:
         for name, (table, scale) in tables.items():
             t, vals = _seconds(table, scale, origin, name, meta, rep)
             streams[name] = _STREAMS[name][1](man, t, vals, meta, rep)
-        return Flight(**streams, site=site, meta=meta, repairs=rep.counts)
+        return rep.attach(Flight(**streams, site=site, meta=meta, repairs=rep.counts))
 
 
 def _site(man: _Manifest) -> Site:

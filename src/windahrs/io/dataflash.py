@@ -150,15 +150,17 @@ def read_dataflash(
     with flight_errors_name(p):
         t, a = _series("imu", rows["IMU"], t0, rep)
         imu = ImuStream(t=t, w_b=rep.rows("imu", a[:, 0:3], GYRO_RANGE), f_b=rep.rows("imu", a[:, 3:6], ACCEL_RANGE))
-        return Flight(
-            imu=imu,
-            mag=_mag(rows, t0, rep),
-            gnss=_gnss(rows, t0, meta, rep),
-            air=_air(rows, t0, meta, rep),
-            reference=_reference(rows, t0, meta, rep),
-            ref_wind=_wind(rows, t0, meta, rep),
-            meta=meta,
-            repairs=rep.counts,
+        return rep.attach(
+            Flight(
+                imu=imu,
+                mag=_mag(rows, t0, rep),
+                gnss=_gnss(rows, t0, meta, rep),
+                air=_air(rows, t0, meta, rep),
+                reference=_reference(rows, t0, meta, rep),
+                ref_wind=_wind(rows, t0, meta, rep),
+                meta=meta,
+                repairs=rep.counts,
+            )
         )
 
 
@@ -253,7 +255,9 @@ def _series(
     t_us = np.array([r[0] for r in rows], dtype=np.int64)
     vals = np.array([r[1] for r in rows], dtype=np.float64)
     t_us, (vals,) = rep.series(name, t_us, vals)
-    return (t_us - t0).astype(np.float64) * _US, vals
+    sec = (t_us - t0).astype(np.float64) * _US
+    rep.locate(name, sec)  # (before a reader drops rows: GNSS without a fix)
+    return sec, vals
 
 
 def _mag(rows: _Rows, t0: int, rep: RepairLog) -> MagStream | None:

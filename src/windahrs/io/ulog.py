@@ -198,6 +198,7 @@ def read_ulog(
                 meta=meta,
                 repairs=rep.counts,
             )
+            flight = rep.attach(flight)
     except _MissingField as exc:
         raise LogFormatError(
             p, f"topic '{exc.topic}' has no field '{exc.field}' (corrupt or unknown message format)"
@@ -309,7 +310,9 @@ def _clean(
     name: str, t_us: NDArray[np.int64], t0: int, rep: RepairLog, *values: NDArray[Any]
 ) -> tuple[NDArray[np.float64], list[NDArray[Any]]]:
     t, vals = rep.series(name, t_us, *values)
-    return (t - t0).astype(np.float64) * _US, vals
+    sec = (t - t0).astype(np.float64) * _US
+    rep.locate(name, sec)
+    return sec, vals
 
 
 def _imu(sc: Data, t0: int, meta: dict[str, Any], rep: RepairLog) -> ImuStream:
