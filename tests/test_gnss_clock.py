@@ -155,3 +155,25 @@ def test_real_ansfl_flight_shift_agrees_with_the_gnss_accelerations() -> None:
         return float(np.corrcoef(g, m)[0, 1])
 
     assert agreement(moved) > agreement(flight) + 0.1, (agreement(flight), agreement(moved))
+
+
+@pytest.mark.parametrize("spec", ["ins-wind", "mekf"])
+def test_init_yaw_spreads_the_attitude_about_the_nav_vertical(sim: Flight, spec: str) -> None:
+    from windahrs.rotation import dcm_from_quat
+
+    flight = sim.replace(mag=None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        wide = make_estimator(f"{spec}:init_yaw=1.0").run(flight)
+        plain = make_estimator(spec).run(flight)
+    for est, yaw_sigma in ((wide, 1.0), (plain, math.radians(10.0))):
+        P, q = est.att_cov(), est.q_nb[est.cov_rows[0]]
+        assert P is not None
+        d = dcm_from_quat(q)[2]  # the nav vertical in the body frame, C_bn e_3
+        assert float(d @ P[0] @ d) == pytest.approx(yaw_sigma**2, rel=0.02)
+    # about the vertical only: the tilt's spread is init_att's in both
+    P_w, P_p = wide.att_cov(), plain.att_cov()
+    assert P_w is not None and P_p is not None
+    assert np.trace(P_w[0]) - 1.0 == pytest.approx(np.trace(P_p[0]) - math.radians(10.0) ** 2, abs=1e-5)
+    with pytest.raises(ValueError, match="init_yaw"):
+        make_estimator("ins-wind:init_yaw=-1")

@@ -184,7 +184,8 @@ R_REST_TAU = 67  # rest_tau, s
 R_REST_MIN_T = 68  # rest_min_time, s
 R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
 R_REST_CLIP = 70  # rest_bias_clip, rad/s
-N_PRM = 71
+R_P0_YAW = 71  # init_yaw^2, rad^2 (0: init_att's)
+N_PRM = 72
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)

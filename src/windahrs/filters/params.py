@@ -50,7 +50,9 @@ _AP_DT = 0.01
 MAX_MAGNITUDE = 1e50
 
 #: Fields that are angles in rad: at most pi (an attitude or flow angle is off by 180 deg at most).
-ANGLE_FIELDS = frozenset({"init_att", "vane_sigma", "sideslip_sigma", "mag_dip_gate", "airspeed_scale_beta_sigma"})
+ANGLE_FIELDS = frozenset(
+    {"init_att", "init_yaw", "vane_sigma", "sideslip_sigma", "mag_dip_gate", "airspeed_scale_beta_sigma"}
+)
 #: Fields that are angular rates in rad/s, at most the gyro's widest range.
 _RATE_FIELDS = ("rest_gyro_threshold", "rest_bias_sigma", "rest_bias_clip")
 
@@ -191,7 +193,10 @@ class EskfParams:
     standard deviation (PX4's test ratio), per sensor.
 
     Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
-    init_wind m/s, init_accel_bias m/s^2.
+    init_wind m/s, init_accel_bias m/s^2. init_yaw rad: the attitude's spread about the nav
+    vertical instead of init_att's (at the start and wherever a reset sets the attitude's
+    spread again; 0, the default: init_att's), for a start whose heading nothing measures
+    yet (no magnetometer; docs/estimators.md, docs/RESULTS.md section 14).
 
     Start and recovery. init_window s: without a given initial state, the attitude is
     initialised from the mean specific force over the first init_window seconds of IMU
@@ -288,6 +293,7 @@ class EskfParams:
     gate_gnss: float = 5.0
     gate_air: float = 5.0
     init_att: float = 10.0 * DEG
+    init_yaw: float = 0.0
     init_bias: float = 0.5 * DEG
     init_v: float = 1.0
     init_wind: float = 5.0
