@@ -266,7 +266,8 @@ def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureF
                                      "construction; nothing to align"}
     fitted = al["path_10"]
     assert set(fitted) == {"aligned_on", "mount_deg", "mount_rpy_deg", "mount_q", "time_offset_s",
-                           "rate_agreement", "residual_deg", "samples", "warning"}
+                           "rate_agreement", "residual_deg", "samples", "warning", "gnss_time_shift_s",
+                           "gnss_timing_sigma_s"}
     # the reference is the truth at 10 Hz on the IMU's clock: nothing to align but ins-wind's own errors
     assert fitted["aligned_on"] == "ins-wind" and fitted["mount_deg"] < 1.0 and abs(fitted["time_offset_s"]) < 0.01
     assert fitted["rate_agreement"] > 0.99 and fitted["residual_deg"] < 2.0 and fitted["warning"] is None

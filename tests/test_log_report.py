@@ -465,7 +465,7 @@ def test_cli_compare_align(files: dict[str, Path], capsys: pytest.CaptureFixture
     assert rows[0]["samples"] == al.samples and rows[0]["warning"] is None
     keys = set(rows[0]) - set(sc.as_dict())
     assert keys == {"aligned_on", "mount_deg", "mount_rpy_deg", "mount_q", "time_offset_s", "rate_agreement",
-                    "residual_deg", "samples", "warning"}
+                    "residual_deg", "samples", "warning", "gnss_time_shift_s", "gnss_timing_sigma_s"}
     assert {k: rows[0][k] for k in keys} == {k: rows[1][k] for k in keys}  # one alignment for every filter
     assert rows[0]["rmse_total_deg"] == pytest.approx(sc.rmse_total_deg)
 

@@ -812,14 +812,18 @@ ALIGN_HELP = (
     "filter's estimate (put the most accurate first) and remove that one alignment for every filter, so all are "
     "scored against the same reference (fitting each filter its own would also hide its constant errors); "
     "prints the mount angle and time offset (beside --json: on stderr, and the alignment's fields in each JSON row). "
-    "Needs a logged reference (mocap or autopilot); a residual over 5 deg is flagged as an unreliable alignment"
+    "Needs a logged reference (mocap or autopilot); a residual over 5 deg is flagged as an unreliable alignment. "
+    "A GNSS the flight declares on the reference's clock (meta gnss.clock=reference, as ANSFL's) is moved by the "
+    "same offset, its timing uncertainty lowered to the fit's, for every filter after the first"
 )
 BENCH_ALIGN_HELP = (
     "per recording, before scoring, estimate a constant mounting rotation and time offset between the reference "
     "and the FIRST filter's estimate (put the most accurate first) and remove that one alignment for every "
     "filter, as compare --align does; printed above each recording's table (in --json: 'alignment' by "
     "recording). A recording whose first filter does not run, or whose fit fails, is scored against the reference "
-    "as logged, and says so; a residual over 5 deg is flagged as an unreliable alignment"
+    "as logged, and says so; a residual over 5 deg is flagged as an unreliable alignment. A GNSS the recording "
+    "declares on the reference's clock (meta gnss.clock=reference, as ANSFL's) is moved by the same offset, its "
+    "timing uncertainty lowered to the fit's, for every filter after the first"
 )
 
 SMOOTH_HELP_ONE = (

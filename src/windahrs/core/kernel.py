@@ -155,6 +155,7 @@ from windahrs.core.layout import (
     R_P0_V,
     R_P0_W,
     R_P0_WV,
+    R_P0_YAW,
     R_RESET_TOUT,
     R_REST_CLIP,
     R_REST_F2,
@@ -775,6 +776,7 @@ def make_state(
     prm[R_GATE2_AIR] = p.gate_air**2
     # initial spreads: the given initial state's, else the parameters'
     prm[R_P0_ATT] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
+    prm[R_P0_YAW] = p.init_yaw**2 if ini is None or ini.sigma_att is None else 0.0
     prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
     prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
     prm[R_P0_W] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2

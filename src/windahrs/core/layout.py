@@ -185,7 +185,8 @@ R_REST_MIN_T = 68  # rest_min_time, s
 R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
 R_REST_CLIP = 70  # rest_bias_clip, rad/s
 R_ACC_LAGB = 71  # accel_lowpass_bias: 1 the low-passed gravity measurement carries its gyro-bias columns
-N_PRM = 72
+R_P0_YAW = 72  # init_yaw^2, rad^2 (0: init_att's)
+N_PRM = 73
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)

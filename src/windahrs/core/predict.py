@@ -58,7 +58,7 @@ from windahrs.core.quat import (
 #: attitude and gyro bias (every filter), the held-sample noise of long IMU steps (the EKFs on
 #: this core), the rate-proportional gyro noise (error-state only), the INS (velocity from the
 #: accelerometer, its bias), the wind states.
-ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_bias", "init_window")
+ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_yaw", "init_bias", "init_window")
 HELD_SAMPLE_PARAMS = ("unmeasured_motion_dt",)
 GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
 INS_PARAMS = ("accel_noise", "accel_bias_noise", "init_accel_bias", "init_v")

@@ -32,6 +32,7 @@ from windahrs.core.layout import (
     INN_RESET,
     R_P0_ATT,
     R_P0_BG,
+    R_P0_YAW,
     R_RESET_TOUT,
     S_MAGN,
     W_M,
@@ -90,8 +91,12 @@ def reopen(cfg, P, i0, var, var_last):
 @njit(**_JIT)
 def set_attitude_cov(cfg, prm, x, P, work):
     """The attitude's spread to init_att^2 per axis, uncorrelated with the other states
-    (additive form: on the quaternion, ``1/4 Xi var Xi^T``)."""
+    (additive form: on the quaternion, ``1/4 Xi var Xi^T``); with init_yaw > 0, init_yaw^2
+    about the nav vertical (body direction ``d = C_bn e_3``: ``var I + (var_yaw - var) d d^T``)."""
     var = prm[R_P0_ATT]
+    if prm[R_P0_YAW] > 0.0:
+        _set_attitude_cov_yaw(cfg, prm, x, P, work)
+        return
     if cfg[C_ADD] == 1:
         clear_rows(cfg, P, 0, 4)
         Xi = work[W_M + 4 : W_M + 8]
@@ -106,6 +111,35 @@ def set_attitude_cov(cfg, prm, x, P, work):
         clear_rows(cfg, P, 0, 3)
         for a in range(3):
             P[a, a] = var
+
+
+@njit(**_JIT)
+def _set_attitude_cov_yaw(cfg, prm, x, P, work):
+    """set_attitude_cov with a separate spread about the nav vertical (init_yaw)."""
+    var = prm[R_P0_ATT]
+    dv = prm[R_P0_YAW] - var
+    w, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    d = (2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), w * w - qx * qx - qy * qy + qz * qz)
+    P3 = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            P3[r, c] = dv * d[r] * d[c] + (var if r == c else 0.0)
+    if cfg[C_ADD] == 1:
+        clear_rows(cfg, P, 0, 4)
+        Xi = work[W_M + 4 : W_M + 8]
+        _xi_into(w, qx, qy, qz, Xi)
+        for r in range(4):
+            for c in range(4):
+                s = 0.0
+                for k in range(3):
+                    for m in range(3):
+                        s += Xi[r, k] * P3[k, m] * Xi[c, m]
+                P[r, c] = 0.25 * s
+    else:
+        clear_rows(cfg, P, 0, 3)
+        for r in range(3):
+            for c in range(3):
+                P[r, c] = P3[r, c]
 
 
 @njit(**_JIT)

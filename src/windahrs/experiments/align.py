@@ -26,6 +26,13 @@ with A the identity, or a rotation about the nav vertical for heading-free refer
 Whatever is constant in the estimator's own error (e.g. a tilt bias from an uncompensated
 accelerometer bias), and its dynamic lag, is absorbed too: estimate the alignment with the
 most accurate estimator available and apply that one alignment to every estimator.
+
+A stream the flight declares to be stamped on the reference's clock (``Flight.meta
+["gnss.clock"] = "reference"``, :data:`GNSS_CLOCK_KEY`: the ANSFL reader's GNSS velocity and
+reference both come from DJI's log) is moved onto the estimate's clock by the same fitted
+offset (:func:`align_gnss_clock`), and its declared timing uncertainty
+(``meta["gnss.timing_sigma_s"]``) is lowered to what the fit leaves,
+:attr:`Alignment.time_sigma_s`.
 """
 
 from __future__ import annotations
@@ -37,13 +44,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
-from windahrs.flight import Flight, Reference
+from windahrs.flight import Flight, GnssStream, Reference
 from windahrs.metrics import reference_of
 from windahrs.rotation import euler_from_quat, quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
 
 __all__ = [
     "ALIGN_RESIDUAL_DEG",
+    "GNSS_CLOCK_KEY",
+    "GNSS_ON_REFERENCE_CLOCK",
     "Alignment",
+    "align_gnss_clock",
     "alignment_warning",
     "apply_alignment",
     "describe_alignment",
@@ -56,6 +66,12 @@ F64 = NDArray[np.float64]
 #: Above this residual (deg) an alignment is reported as unreliable.
 ALIGN_RESIDUAL_DEG = 5.0
 
+#: ``Flight.meta`` key a reader sets to say on which clock the GNSS stream is stamped; the
+#: value :data:`GNSS_ON_REFERENCE_CLOCK` means the reference's (both logged by one device),
+#: so the clock offset an alignment fits applies to the GNSS too (:func:`align_gnss_clock`).
+GNSS_CLOCK_KEY = "gnss.clock"
+GNSS_ON_REFERENCE_CLOCK = "reference"
+
 
 @dataclass(frozen=True)
 class Alignment:
@@ -67,6 +83,11 @@ class Alignment:
     ``t - time_offset_s``). correlation: the peak agreement score of the two series' body
     rates, up to the mount (1: identical). residual_deg: RMS angle of what remains
     between the aligned reference and the estimate, deg. samples: estimate samples used.
+    time_sigma_s: the standard deviation of time_offset_s, s, as far as the sampling
+    limits it: the offset is resolved within one sample period of the slower of the two
+    series, uniformly, so ``period / sqrt(12)`` (the variance of a uniform quantisation,
+    Widrow and Kollar, "Quantization Noise", Cambridge 2008, ch. 4; 0.029 s for a 10 Hz
+    reference); NaN when not known.
     """
 
     q_mount: F64
@@ -74,6 +95,7 @@ class Alignment:
     correlation: float = math.nan
     residual_deg: float = math.nan
     samples: int = 0
+    time_sigma_s: float = math.nan
 
     @property
     def mount_angle_deg(self) -> float:
@@ -249,6 +271,7 @@ def estimate_alignment(est: Estimate, flight: Flight, *, max_offset_s: float = 1
     if len(t_ref) < 3 or np.count_nonzero(ok_ref) < 3:
         raise ValueError("alignment: the reference has fewer than 3 valid samples")
     tau, corr = _time_offset(est.t, est.q_nb, ok_est, t_ref, q_ref, ok_ref, max_offset_s)
+    period = max(float(np.median(np.diff(est.t))), float(np.median(np.diff(t_ref))))
     q_r, ok = _slerp_at(t_ref - tau, q_ref, ok_ref, est.t)
     ok &= ok_est
     if np.count_nonzero(ok) < 3:
@@ -261,7 +284,8 @@ def estimate_alignment(est: Estimate, flight: Flight, *, max_offset_s: float = 1
     resid = quat_log(quat_mul(quat_conj(quat_mul(quat_mul(a, qr), mount)), qe))
     rms = math.degrees(float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))))
     return Alignment(
-        q_mount=mount, time_offset_s=tau, correlation=corr, residual_deg=rms, samples=int(np.count_nonzero(ok))
+        q_mount=mount, time_offset_s=tau, correlation=corr, residual_deg=rms, samples=int(np.count_nonzero(ok)),
+        time_sigma_s=period / math.sqrt(12.0),
     )
 
 
@@ -288,6 +312,35 @@ def apply_alignment(flight: Flight, alignment: Alignment) -> Flight:
         "reference.mount_deg": alignment.mount_angle_deg,
     }
     return flight.replace(reference=new_ref, meta=meta)
+
+
+def align_gnss_clock(flight: Flight, alignment: Alignment) -> Flight:
+    """``flight`` with its GNSS stream moved onto the estimate's clock when the flight
+    declares it stamped on the reference's (``meta[GNSS_CLOCK_KEY] == "reference"``);
+    otherwise ``flight`` itself, unchanged (no GNSS, another clock, or no declaration).
+
+    The reference sample stamped ``t`` describes the attitude at ``t - time_offset_s`` on
+    the estimate's (the IMU's) clock, so a GNSS sample stamped ``t`` on the same clock is
+    moved to ``t - time_offset_s`` (as :func:`apply_alignment` moves the reference). The
+    declared timing uncertainty ``meta["gnss.timing_sigma_s"]`` becomes the smaller of its
+    value and :attr:`Alignment.time_sigma_s` (what the fit leaves); ``meta
+    ["gnss.time_shift_s"]`` records the shift applied, s (``-time_offset_s``), and the
+    clock key becomes ``"estimate"``. Raises ValueError for a non-finite offset or a
+    time_sigma_s that is negative."""
+    if flight.gnss is None or flight.meta.get(GNSS_CLOCK_KEY) != GNSS_ON_REFERENCE_CLOCK:
+        return flight
+    tau = alignment.time_offset_s
+    if not math.isfinite(tau):
+        raise ValueError(f"alignment.time_offset_s: expected a finite time, found {tau!r}")
+    sigma = alignment.time_sigma_s
+    if sigma < 0:
+        raise ValueError(f"alignment.time_sigma_s: expected >= 0 s or NaN, found {sigma!r}")
+    meta = {**flight.meta, GNSS_CLOCK_KEY: "estimate", "gnss.time_shift_s": -float(tau)}
+    declared = float(flight.meta.get("gnss.timing_sigma_s", math.inf) or 0.0)
+    if math.isfinite(sigma) and sigma < declared:
+        meta["gnss.timing_sigma_s"] = float(sigma)
+    gnss = GnssStream(t=flight.gnss.t - tau, v_n=flight.gnss.v_n)
+    return flight.replace(gnss=gnss, meta=meta)
 
 
 def describe_alignment(alignment: Alignment, aligned_on: str | None = None) -> str:

@@ -215,7 +215,8 @@ class BenchResult:
         recording was skipped and ``"alignment": {TRIAL: {...}}`` with ``align``: the fields
         of :meth:`AlignmentOutcome.fields` (``aligned_on``, ``mount_deg``,
         ``mount_rpy_deg``, ``mount_q``, ``time_offset_s``, ``rate_agreement``,
-        ``residual_deg``, ``samples``, ``warning``), or ``{"skipped": why}`` /
+        ``residual_deg``, ``samples``, ``warning``, ``gnss_time_shift_s``,
+        ``gnss_timing_sigma_s``), or ``{"skipped": why}`` /
         ``{"failed": why}``. Serialise with ``json.dumps``."""
         median = {f: {k: _json_float(v) for k, v in m.items()} for f, m in self.median().items()}
         out: dict[str, Any] = {"trials": [s.as_dict() for s in self.scores], "median": median}
@@ -455,7 +456,11 @@ def bench_data(
     the FIRST spec's estimate (:func:`~windahrs.experiments.compare.align_reference`, as
     ``compare --align``) and score every filter against that aligned reference. A fit that
     fails, or a first filter that did not run, leaves that flight's reference as logged,
-    said so in ``alignments``. A simulation's truth is never aligned.
+    said so in ``alignments``. A simulation's truth is never aligned. A flight declaring its
+    GNSS on the reference's clock (``meta["gnss.clock"] = "reference"``) has its GNSS moved
+    by the fitted offset, and its timing uncertainty lowered to the fit's, before the other
+    filters run (:meth:`~windahrs.experiments.compare.AlignmentOutcome.run_flight`; the
+    first runs on the flight as logged).
 
     ``progress(done, total)`` is called after each filter run (and per filter of a skipped
     recording). Trial names are :func:`trial_names`.
@@ -486,25 +491,20 @@ def bench_data(
                 progress(done, total)
             continue
         runs: list[tuple[str, Estimate | str, float]] = []
-        for spec, est in zip(specs, estimators, strict=True):
+        outcome = AlignmentOutcome()
+        for k, (spec, est) in enumerate(zip(specs, estimators, strict=True)):
             t0 = time.perf_counter()
-            results, failures = run_estimators(flight, [(spec, est)], keep_going=True)
+            # The filters after the first run on the GNSS the alignment moved (if any).
+            results, failures = run_estimators(outcome.run_flight(flight), [(spec, est)], keep_going=True)
             seconds = time.perf_counter() - t0
             runs.append((spec, results[0][1] if results else failures[spec], seconds))
             done += 1
             if progress is not None:
                 progress(done, total)
-        scored = flight
-        if align:
-            spec0, first, _ = runs[0]
-            if isinstance(first, Estimate):
-                outcome = align_reference(flight, (spec0, first), fallback=True)
-            elif flight.reference is None:
-                outcome = AlignmentOutcome(skipped=nothing_to_align(flight))
-            else:
-                outcome = AlignmentOutcome(failed=f"the first filter, {spec0}, did not run")
-            alignments[name] = outcome
-            scored = outcome.apply(flight)
+            if align and k == 0:
+                outcome = _first_alignment(flight, spec, runs[0][1])
+                alignments[name] = outcome
+        scored = outcome.apply(flight)
         for spec, result, seconds in runs:
             if not isinstance(result, Estimate):
                 scores.append(_failed(name, spec, result))
@@ -533,6 +533,15 @@ def bench_data(
         skipped=tuple(skips),
         alignments=alignments if align else None,
     )
+
+
+def _first_alignment(flight: Flight, spec: str, first: Estimate | str) -> AlignmentOutcome:
+    """The alignment on the first filter's result, or why there is none."""
+    if isinstance(first, Estimate):
+        return align_reference(flight, (spec, first), fallback=True)
+    if flight.reference is None:
+        return AlignmentOutcome(skipped=nothing_to_align(flight))
+    return AlignmentOutcome(failed=f"the first filter, {spec}, did not run")
 
 
 def _reason(exc: BaseException, path: str | os.PathLike[str]) -> str:

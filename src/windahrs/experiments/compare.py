@@ -14,7 +14,9 @@ The steps, each a function the CLI only prints around:
   flight's reference and the FIRST result's estimate, fitted once and applied to every
   filter, so all are scored against the same reference. A simulation's truth needs none;
   a fit that fails either raises :class:`AlignmentError` or, with ``fallback=True``, leaves
-  the reference as logged and says why;
+  the reference as logged and says why. A flight whose GNSS is stamped on the reference's
+  clock (``meta["gnss.clock"] = "reference"``) has its GNSS moved by the same offset
+  before the other filters run (:meth:`AlignmentOutcome.run_flight`);
 * :func:`compare`: all of it for ``windahrs compare``; its :class:`CompareResult` prints
   (``str``) exactly what the command prints and gives the ``--json`` rows.
 """
@@ -29,7 +31,10 @@ import numpy as np
 
 from windahrs.estimate import Estimate
 from windahrs.experiments.align import (
+    GNSS_CLOCK_KEY,
+    GNSS_ON_REFERENCE_CLOCK,
     Alignment,
+    align_gnss_clock,
     alignment_warning,
     apply_alignment,
     describe_alignment,
@@ -183,20 +188,29 @@ class AlignmentOutcome:
     """What became of an alignment request. ``alignment`` and ``aligned_on`` (the spec
     it was fitted on) when it was made; else ``skipped`` (nothing to align) or ``failed``
     (the fit's error, the reference is used as logged). ``warning``: the fit is
-    unreliable (:func:`~windahrs.experiments.align.alignment_warning`)."""
+    unreliable (:func:`~windahrs.experiments.align.alignment_warning`). ``gnss_shift_s``
+    and ``gnss_timing_sigma_s``: when the flight's GNSS is on the reference's clock, the
+    shift its stamps get (s, ``-time_offset_s``) and the timing uncertainty then declared
+    (s) (:func:`~windahrs.experiments.align.align_gnss_clock`); None otherwise."""
 
     alignment: Alignment | None = None
     aligned_on: str | None = None
     skipped: str | None = None
     failed: str | None = None
     warning: str | None = None
+    gnss_shift_s: float | None = None
+    gnss_timing_sigma_s: float | None = None
 
     @property
     def text(self) -> str | None:
         """The line ``--align`` prints, or None without an alignment."""
         if self.alignment is None:
             return None
-        return describe_alignment(self.alignment, self.aligned_on)
+        line = describe_alignment(self.alignment, self.aligned_on)
+        if self.gnss_shift_s is not None:
+            line += (f"; GNSS on the reference's clock: stamps moved by {self.gnss_shift_s * 1e3:+.1f} ms, "
+                     f"timing uncertainty {self.gnss_timing_sigma_s or 0.0:.3f} s")
+        return line
 
     def fields(self) -> dict[str, object]:
         """The alignment as the JSON fields of ``compare --json`` and ``bench-data --json``
@@ -204,8 +218,11 @@ class AlignmentOutcome:
         mount's rotation angle), ``mount_rpy_deg`` (its ZYX roll, pitch, yaw), ``mount_q``
         ([w, x, y, z], ``q_est = q_ref * q_mount``), ``time_offset_s`` (how late the
         reference stamps are), ``rate_agreement`` (peak agreement of the body rates, 1:
-        identical), ``residual_deg`` (RMS of what the alignment leaves), ``samples`` and
-        ``warning`` (why the fit is unreliable, or None)."""
+        identical), ``residual_deg`` (RMS of what the alignment leaves), ``samples``,
+        ``warning`` (why the fit is unreliable, or None), ``gnss_time_shift_s`` (how far the
+        GNSS stamps were moved, s, or None when the GNSS is not on the reference's clock) and
+        ``gnss_timing_sigma_s`` (the timing uncertainty the moved GNSS then declares, s, or
+        None)."""
         al = self.alignment
         if al is None:
             return {}
@@ -220,11 +237,20 @@ class AlignmentOutcome:
             "residual_deg": _json_float(al.residual_deg),
             "samples": al.samples,
             "warning": self.warning,
+            "gnss_time_shift_s": self.gnss_shift_s,
+            "gnss_timing_sigma_s": self.gnss_timing_sigma_s,
         }
 
     def apply(self, flight: Flight) -> Flight:
         """``flight`` with its reference aligned (unchanged without an alignment)."""
         return flight if self.alignment is None else apply_alignment(flight, self.alignment)
+
+    def run_flight(self, flight: Flight) -> Flight:
+        """The flight the filters after the first run on: its GNSS moved onto the IMU's
+        clock when it is declared on the reference's
+        (:func:`~windahrs.experiments.align.align_gnss_clock`); ``flight`` itself otherwise,
+        and without an alignment."""
+        return flight if self.alignment is None else align_gnss_clock(flight, self.alignment)
 
 
 def align_reference(flight: Flight, fitted_on: tuple[str, Estimate], *, fallback: bool = False) -> AlignmentOutcome:
@@ -244,7 +270,14 @@ def align_reference(flight: Flight, fitted_on: tuple[str, Estimate], *, fallback
         if not fallback:
             raise AlignmentError(str(exc)) from None
         return AlignmentOutcome(failed=str(exc))
-    return AlignmentOutcome(alignment=al, aligned_on=spec, warning=alignment_warning(al))
+    shift = sigma = None
+    if flight.gnss is not None and flight.meta.get(GNSS_CLOCK_KEY) == GNSS_ON_REFERENCE_CLOCK:
+        moved = align_gnss_clock(flight, al).meta
+        shift = float(moved["gnss.time_shift_s"])
+        sigma = float(moved.get("gnss.timing_sigma_s", 0.0))
+    return AlignmentOutcome(
+        alignment=al, aligned_on=spec, warning=alignment_warning(al), gnss_shift_s=shift, gnss_timing_sigma_s=sigma
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -323,8 +356,10 @@ def compare(
     specs: registry specs (a list, or one comma-separated string) or built estimators
     (labelled by their ``label``). align: first fit one mount rotation and clock offset
     between the reference and the FIRST filter's estimate and score every filter against
-    that aligned reference (a simulation's truth is used as is). ``progress(done, total)``
-    after each filter.
+    that aligned reference (a simulation's truth is used as is); a GNSS stream declared on
+    the reference's clock is moved by that offset before the other filters run
+    (:meth:`AlignmentOutcome.run_flight`; the first runs on the flight as logged).
+    ``progress(done, total)`` after each filter.
 
     Raises ValueError for a bad spec, a filter that cannot run on the flight, a flight
     with nothing to score against, and :class:`AlignmentError` for a failed alignment.
@@ -335,8 +370,16 @@ def compare(
     if not items:
         raise ValueError("specs: expected at least one filter spec, found none")
     pairs = [(s, make_estimator(s)) if isinstance(s, str) else (s.label, s) for s in items]
-    results, _ = run_estimators(flight, pairs, progress=progress)
-    outcome = align_reference(flight, results[0]) if align else AlignmentOutcome()
+    if not align:
+        results, _ = run_estimators(flight, pairs, progress=progress)
+        outcome = AlignmentOutcome()
+    else:
+        step = None if progress is None else (lambda done, _: progress(done, len(pairs)))
+        results, _ = run_estimators(flight, pairs[:1], progress=step)
+        outcome = align_reference(flight, results[0])
+        step = None if progress is None else (lambda done, _: progress(done + 1, len(pairs)))
+        rest, _ = run_estimators(outcome.run_flight(flight), pairs[1:], progress=step)
+        results += rest
     scored = outcome.apply(flight)
     rows = tuple(score(est, scored) for _, est in results)
     return CompareResult(rows=rows, estimates=tuple(results), alignment=outcome)
@@ -372,21 +415,35 @@ def run_for_report(
     """Run a selection on ``flight`` for the report: defaults the flight lacks a sensor for
     are left out (noted), a filter that fails is recorded and the others go on
     (``on_failure(spec, why)`` is called as it happens); what ``auto`` ran is noted. With
-    ``align`` and at least one result, the reference is aligned to the first result; a
-    failed fit is noted and the scores are against the reference as logged."""
+    ``align`` and at least one result, the reference is aligned to the first result (and a
+    GNSS on the reference's clock moved for the filters after it,
+    :meth:`AlignmentOutcome.run_flight`); a failed fit is noted and the scores are against
+    the reference as logged."""
     from windahrs.filters.auto import describe_choice
 
     sel = selection.for_flight(flight)
-    results, failed = run_estimators(flight, sel.estimators, keep_going=True, progress=progress)
+    pairs = list(sel.estimators.items())
+    results: list[tuple[str, Estimate]] = []
+    failed: dict[str, str] = {}
+    outcome = AlignmentOutcome()
+    for i, (spec, est) in enumerate(pairs):
+        # With align, the filters after the first that ran see the GNSS the alignment moved.
+        run_on = outcome.run_flight(flight)
+        try:
+            results.append((spec, est.run(run_on)))
+        except ValueError as exc:
+            failed[spec] = str(exc)
+        if align and len(results) == 1 and spec == results[0][0]:
+            outcome = align_reference(flight, results[0], fallback=True)
+        if progress is not None:
+            progress(i + 1, len(pairs))
     if on_failure is not None:
         for spec, why in failed.items():
             on_failure(spec, why)
     failures = {**sel.failures, **failed}
     notes = list(sel.notes)
     notes += [f"{line}." for line in (describe_choice(est) for _, est in results) if line is not None]
-    outcome = AlignmentOutcome()
     if align and results:
-        outcome = align_reference(flight, results[0], fallback=True)
         if outcome.skipped:
             notes.append(f"--align: {outcome.skipped}.")
         elif outcome.failed:

@@ -17,7 +17,14 @@ no GNSS, no air data        [mekf] with its field defaults; the magnetometer whe
 ==========================  ===============================================================
 
 A GNSS stream the flight declares unsynchronised (``meta["gnss.timing_sigma_s"]`` above
-:data:`MAX_GNSS_TIMING_S`) counts as absent. After the run, an INS that fails the tilt check
+:data:`MAX_GNSS_TIMING_S`) counts as absent, and so does a GNSS stream on a flight without
+a magnetometer (or with ``mag_mode=off``): the INS starts at yaw 0 with init_att's spread
+(10 deg), and GNSS velocity fused under a heading that is wrong by tens of degrees tilts it.
+PX4's EKF2 fuses GNSS only once its yaw is aligned (by the magnetometer, or in flight by
+its GSF yaw estimator), which windahrs does not have yet. Measured on the ANSFL quadrotor
+(no magnetometer) with its GNSS moved onto the IMU's clock by ``--align``: [ins-wind] 15.8
+deg median tilt on the even flights, 3.6 deg started at the reference's attitude (heading
+included), [mekf] 4.7 (docs/RESULTS.md, section 15). After the run, an INS that fails the tilt check
 is replaced by the run without GNSS when that one fails it for less time (see :meth:`Auto.run`).
 
 Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
@@ -227,11 +234,16 @@ class Auto(Estimator):
         streams = usable_streams(flight)
         timing = float(flight.meta.get("gnss.timing_sigma_s", 0.0) or 0.0)
         unsynced = "gnss" in streams and timing > MAX_GNSS_TIMING_S
-        choice = self.choose(streams - {"gnss"} if unsynced else streams)
+        headless = "gnss" in streams and ("mag" not in streams or self.overrides.get("mag_mode") == "off")
+        choice = self.choose(streams - {"gnss"} if unsynced or headless else streams)
         if unsynced:
             choice = dataclasses.replace(
                 choice, reason=f"GNSS velocity stamped on another clock (timing uncertain by {timing:g} s, "
                 f"beyond {MAX_GNSS_TIMING_S:g} s): attitude without it")
+        elif headless:
+            choice = dataclasses.replace(
+                choice, reason="GNSS velocity without a magnetometer: no heading to start the INS with, "
+                "attitude without it")
         est, caught = _run_quietly(choice.estimator, flight, initial, smooth)
         duration = float(flight.imu.t[-1] - flight.imu.t[0])
         if "gnss" in choice.sensors and _alert_seconds(est) > FALLBACK_SHARE * duration:

@@ -50,7 +50,9 @@ _AP_DT = 0.01
 MAX_MAGNITUDE = 1e50
 
 #: Fields that are angles in rad: at most pi (an attitude or flow angle is off by 180 deg at most).
-ANGLE_FIELDS = frozenset({"init_att", "vane_sigma", "sideslip_sigma", "mag_dip_gate", "airspeed_scale_beta_sigma"})
+ANGLE_FIELDS = frozenset(
+    {"init_att", "init_yaw", "vane_sigma", "sideslip_sigma", "mag_dip_gate", "airspeed_scale_beta_sigma"}
+)
 #: Fields that are angular rates in rad/s, at most the gyro's widest range.
 _RATE_FIELDS = ("rest_gyro_threshold", "rest_bias_sigma", "rest_bias_clip")
 
@@ -120,10 +122,11 @@ class EskfParams:
     vehicle's bias and tilt settle off (a noise-free 0.6 rad/s cone: tilt 0.045 -> 0.005
     deg; VQF 0.057). Default False: measured on the ANSFL quadrotor flights tilt 4.69 ->
     4.12 deg (even) and 6.40 -> 6.18 (odd), PX4 sample.ulg 0.214 -> 0.191, BROAD
-    inclination 0.552 -> 0.560 (median of 7), but the simulated quadrotor's sustained
-    accelerations, fused as white noise, then reach the bias at the start (mean tilt
-    0.51 -> 2.31 deg over 4 seeds in 8 m/s wind, 10 deg at 10 s on two of them;
-    docs/RESULTS.md section 14).
+    inclination 0.552 -> 0.560 (median of 7), but the simulated quadrotor's manoeuvre
+    accelerations, which the mean keeps for seconds and its noise model takes as white,
+    then reach the bias (mean tilt 0.51 -> 2.31 deg over 4 seeds in 8 m/s wind, 10 deg at
+    10 s on two of them; noise-free sensors: 0.68 -> 1.17 deg at 10 s; docs/RESULTS.md
+    section 16).
     accel_noise_online (with accel_lowpass): add to accel_sigma^2 the accelerometer's noise
     variance estimated on line from the differences of consecutive samples, ``|f_k -
     f_k-1|^2 / 6`` per axis averaged over accel_lowpass: rotor vibration (several m/s^2 on a
@@ -202,7 +205,10 @@ class EskfParams:
     standard deviation (PX4's test ratio), per sensor.
 
     Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
-    init_wind m/s, init_accel_bias m/s^2.
+    init_wind m/s, init_accel_bias m/s^2. init_yaw rad: the attitude's spread about the nav
+    vertical instead of init_att's (at the start and wherever a reset sets the attitude's
+    spread again; 0, the default: init_att's), for a start whose heading nothing measures
+    yet (no magnetometer; docs/estimators.md, docs/RESULTS.md section 15).
 
     Start and recovery. init_window s: without a given initial state, the attitude is
     initialised from the mean specific force over the first init_window seconds of IMU
@@ -300,6 +306,7 @@ class EskfParams:
     gate_gnss: float = 5.0
     gate_air: float = 5.0
     init_att: float = 10.0 * DEG
+    init_yaw: float = 0.0
     init_bias: float = 0.5 * DEG
     init_v: float = 1.0
     init_wind: float = 5.0

@@ -38,7 +38,10 @@ What the reader does not do (the edge converts units and frames, it does not fit
   vertical velocity is quantised by about 0.5 m/s (0.2 m/s RMS: 0.1 m / sqrt(12) * sqrt(2)
   / 0.2 s, the default gnss_sigma); north and east are RTK positions at mm to cm level (a few
   cm/s). The velocity is on DJI's clock, which is declared as a timing uncertainty
-  (``meta["gnss.timing_sigma_s"]``, :data:`ANSFL_GNSS_TIMING_SIGMA`), not corrected.
+  (``meta["gnss.timing_sigma_s"]``, :data:`ANSFL_GNSS_TIMING_SIGMA`), not corrected, and
+  as the reference's clock (``meta["gnss.clock"] = "reference"``: both come from
+  ``GT.csv``), so ``--align`` moves the GNSS by the offset it fits and lowers the timing
+  uncertainty to the fit's (:func:`~windahrs.experiments.align.align_gnss_clock`).
 
 NaN policy: empty cells are NaN (missing samples; reference gaps). Out-of-order and repeated
 time stamps are sorted and dropped with counts in ``meta`` (:mod:`windahrs.io.edge`).
@@ -158,6 +161,7 @@ def read_ansfl(path: str | os.PathLike[str], *, imu: int | None = None, gnss: bo
     if gnss:
         meta["gnss.derived_from"] = "position"
         meta["gnss.timing_sigma_s"] = ANSFL_GNSS_TIMING_SIGMA
+        meta["gnss.clock"] = "reference"  # GT.csv: the reference's log and clock
     with flight_errors_name(d):
         gnss_stream = None
         if gnss:
