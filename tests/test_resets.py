@@ -12,7 +12,8 @@ import windahrs as wa
 from conftest import require_data
 from windahrs.estimate import EstimatorWarning, load_estimate, save_estimate
 from windahrs.filters.base import InitialState
-from windahrs.filters.checks import tilt_alerts
+from windahrs.filters.checks import bias_alerts, tilt_alerts
+from windahrs.flags import FLAGS
 from windahrs.flight import ImuStream
 from windahrs.metrics import attitude_errors
 from windahrs.rotation import quat_mul
@@ -73,6 +74,29 @@ def test_a_real_flight_that_diverges_is_flagged_and_warned() -> None:
         est = wa.estimator(spec).run(flight)
     assert len(est.alerts["tilt"]) >= 1
     assert est.alerts["tilt"][-1, 1] > est.t[-1] - 5.0  # up to the end of the flight
+
+
+def test_the_default_run_that_ends_off_says_so_by_its_bias() -> None:
+    """The same flight with [mekf]'s defaults ends about 12.7 deg off DJI's tilt while its
+    mean specific force disagrees by 8.9 deg at most (under the tilt check's 10): its
+    gyro-bias estimate, though, runs to 2.9 deg/s on an axis, beyond the 2 deg/s a
+    calibrated gyro's bias stays within (filters.checks.bias_alerts); it must say so."""
+    flight = wa.read(require_data("ansfl", "Horizontal", "path_20"))
+    with pytest.warns(EstimatorWarning, match=r"mekf: gyro bias estimated beyond 2 deg/s \(up to 2\.\d deg/s"):
+        est = wa.estimator("mekf").run(flight)
+    assert "tilt" not in est.alerts
+    assert est.flags is not None and np.any(est.flags >> FLAGS["bias_large"][0] & 1)
+
+
+def test_bias_alerts_are_spans_beyond_the_limit() -> None:
+    t = np.arange(100) * 0.1
+    b = np.zeros((100, 3))
+    b[20:30, 1] = np.radians(-2.5)  # one axis beyond 2 deg/s for 1 s
+    b[60:62, 2] = np.radians(3.0)
+    est = wa.Estimate(filter="x", t=t, q_nb=np.tile([1.0, 0, 0, 0], (100, 1)), gyro_bias_b=b)
+    rows = bias_alerts(est)
+    np.testing.assert_allclose(rows, [[2.0, 2.9, 2.5], [6.0, 6.1, 3.0]])
+    assert bias_alerts(dataclasses.replace(est, gyro_bias_b=b * 0.6)).shape == (0, 3)
 
 
 def _with_gyro_spike(flight: wa.Flight, t: float, rate: float) -> wa.Flight:

@@ -126,7 +126,8 @@ class Estimate:
     :meth:`warnings` says them in words. alerts: what
     the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
     [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
-    the mean specific force (lost gravity); ``"imu"``: (K, 4) rows [t s, change of the
+    the mean specific force (lost gravity); ``"bias"``: (K, 3) rows [t_start s, t_end s,
+    largest axis deg/s] where the gyro-bias estimate was beyond 2 deg/s; ``"imu"``: (K, 4) rows [t s, change of the
     angular rate rad/s, of the specific force m/s^2, outcome: 1 beyond the sensor's range,
     2 a spike (both not propagated), 3 motion (propagated one sample late)] of the IMU
     samples the estimator's screen held (:mod:`windahrs.core.imu_screen`). flags: (N,)
@@ -248,6 +249,11 @@ class Estimate:
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "
                        f"from t = {t0:.1f} to {t1:.1f} s (lost gravity?)")
+        bias = self.alerts.get("bias")
+        if bias is not None and len(bias):
+            out.append(f"{self.filter}: gyro bias estimated beyond 2 deg/s (up to {bias[:, 2].max():.1f} deg/s, "
+                       f"{len(bias)} span(s) from t = {bias[0, 0]:.1f} s): more than a calibrated gyro's, "
+                       "an attitude error absorbed into the bias?")
         held = self.alerts.get("imu")
         if held is not None and np.any(held[:, 3] < 3):
             lost = held[held[:, 3] < 3]

@@ -76,6 +76,7 @@ FLAGS: dict[str, tuple[int, str]] = {
     "values_repaired": (22, "a sample set to NaN at the edge (infinite, or beyond the sensor's range)"),
     "mag_drift": (23, "magnetic field in the body drifting from what the attitude predicts (slow disturbance)"),
     "air_drift": (24, "airspeed changing unlike the GNSS velocity along the nose (a blocked or drifting pitot)"),
+    "bias_large": (25, "gyro-bias estimate beyond 2 deg/s (an attitude error absorbed into the bias?)"),
 }
 #: A sensor repeating its sample exactly for at least this long, s (and STUCK_SAMPLES samples),
 #: is stuck: the noise of MEMS inertial and magnetic sensors and of pitot and vane transducers
@@ -284,6 +285,8 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         put("reset", _points(reset_rows[:, 0], t))
     for t0, t1, _ in est.alerts.get("tilt", ()):
         put("tilt_lost", (t >= t0) & (t <= t1))
+    for t0, t1, _ in est.alerts.get("bias", ()):
+        put("bias_large", (t >= t0) & (t <= t1))
     if "gnss" in est.innovations or (est.v_n is not None and "gnss" in absent):
         put("fallback", absent.get("gnss", np.zeros(len(t), dtype=bool)))
     for name, (ts, on) in stream_flags(flight).items():  # onto the estimate's samples

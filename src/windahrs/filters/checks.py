@@ -32,7 +32,10 @@ from windahrs.flags import absent_mask, estimate_flags
 from windahrs.flight import Flight
 from windahrs.rotation import quat_rotate
 
-__all__ = ["TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "checked", "tilt_alerts", "with_repairs"]
+__all__ = [
+    "BIAS_LIMIT_DEG_S", "TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "bias_alerts", "checked", "tilt_alerts",
+    "with_repairs",
+]
 
 F64 = NDArray[np.float64]
 
@@ -48,6 +51,14 @@ TILT_LIMIT_DEG = 10.0
 CHECK_RATE_HZ = 20.0
 #: ... for at least this long, s.
 TILT_HOLD_S = 3.0
+#: A gyro-bias estimate beyond this on any axis, deg/s, is an alert: VQF's biasClip (2 deg/s,
+#: the largest bias it lets its estimate reach), above the residual zero-rate offset of a
+#: calibrated MEMS gyro (autopilots calibrate theirs at boot; e.g. BMI088 +-1 deg/s, ICM-42688
+#: +-0.5 deg/s before it). A filter whose bias runs beyond it has most likely absorbed an
+#: attitude error (a start far off, an unmodelled acceleration) into the bias, which the
+#: tilt check above may read only in part: on ANSFL path_20 [mekf] ends 12.7 deg off in tilt
+#: with its bias at 3.6 deg/s while the mean specific force disagrees by 8.9 deg at most.
+BIAS_LIMIT_DEG_S = 2.0
 
 
 def _fill(a: F64) -> F64:
@@ -124,6 +135,22 @@ def tilt_alerts(
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
+def bias_alerts(est: Estimate, *, limit_deg_s: float = BIAS_LIMIT_DEG_S) -> F64:
+    """The spans where the gyro-bias estimate is beyond ``limit_deg_s`` on some axis: (K, 3)
+    rows [t_start s, t_end s, largest axis deg/s]; none for an estimate without a bias."""
+    b = est.gyro_bias_b
+    if b is None or len(b) == 0:
+        return np.empty((0, 3))
+    big = np.abs(b).max(axis=1)
+    over = big > math.radians(limit_deg_s)  # (NaN rows: not over)
+    if not over.any():
+        return np.empty((0, 3))
+    edges = np.flatnonzero(np.diff(np.r_[0, over.astype(np.int8), 0]))
+    rows = [(est.t[i0], est.t[i1 - 1], math.degrees(float(np.nanmax(big[i0:i1]))))
+            for i0, i1 in zip(edges[::2], edges[1::2], strict=True)]
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
 def with_repairs(est: Estimate, flight: Flight) -> Estimate:
     """``est`` carrying ``flight.repairs`` (a copy)."""
     if not flight.repairs:
@@ -132,13 +159,16 @@ def with_repairs(est: Estimate, flight: Flight) -> Estimate:
 
 
 def checked(est: Estimate, flight: Flight) -> Estimate:
-    """``est`` with its tilt alerts (``alerts["tilt"]``), its per-sample flags
+    """``est`` with its tilt and bias alerts (``alerts["tilt"]``, ``alerts["bias"]``), its per-sample flags
     (:func:`windahrs.flags.estimate_flags`, built when first read: :class:`~windahrs.estimate.Deferred`)
     and the flight's repairs, each of its warnings but
     the repairs emitted as an EstimatorWarning."""
-    rows = tilt_alerts(est, flight)
-    if len(rows):
-        est = dataclasses.replace(est, alerts={**est.alerts, "tilt": rows})
+    rows, bias = tilt_alerts(est, flight), bias_alerts(est)
+    if len(rows) or len(bias):
+        new = {"tilt": rows} if len(rows) else {}
+        if len(bias):
+            new["bias"] = bias
+        est = dataclasses.replace(est, alerts={**est.alerts, **new})
     est = with_repairs(est, flight)
     done = est  # the flags read the Estimate's own records (not its flags): built when first read
     est = dataclasses.replace(est, flags=Deferred(lambda: estimate_flags(done, flight)))  # type: ignore[arg-type]
