@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -125,7 +126,9 @@ VARIANTS = [
     ("mekf", EskfParams(accel_compensation="airspeed", gate_mag=1.0, mag_mode="3d")),
     ("ekf7", EskfParams(mag_mode="heading", accel_compensation="gnss", gate_accel=1.0)),
     ("ins-wind", EskfParams(accel_bias_noise=0.0, mag_mode="heading")),
-    ("ins-wind", EskfParams(air_mode="airspeed", synthetic_sideslip=False, gate_air=1.0, mag_mode="off")),
+    # (init_yaw: init_att's, as before the magnetometer-less INS started with its heading unknown)
+    ("ins-wind", EskfParams(air_mode="airspeed", synthetic_sideslip=False, gate_air=1.0, mag_mode="off",
+                            init_yaw=math.radians(10.0))),
     ("mekf-air", EskfParams(accel_compensation="airspeed", air_mode="airspeed", gate_air=2.0)),
     ("ekf10", EskfParams(accel_compensation="airspeed", mag_mode="off", gate_air=1.5)),
     # magnetometer-bias states (the additive ekf7 carries none)

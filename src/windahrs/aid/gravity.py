@@ -56,13 +56,12 @@ from windahrs.core.layout import (
     X_AVAR,
     X_BA,
     X_BG,
-    X_DF,
     X_FBAR,
     X_JLAG,
-    X_NAVAR,
     X_Q,
     X_VAIR,
 )
+from windahrs.core.predict import track_accel_noise
 from windahrs.core.quat import (
     _dcm9,
 )
@@ -104,20 +103,8 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gravity, ``h = C_bn (-g_n) (+ compensation) (+ b_a)``, ``H_att = [h_g]x``, R = accel_sigma^2 I,
     gated on ``| |f| - g | > accel_norm_gate g`` and on the innovation (gate_accel)."""
     fx, fy, fz = row[3], row[4], row[5]
-    if cfg[C_AVAR] >= 1 and dt > 0:
-        # the accelerometer's noise on line, from the differences of consecutive samples
-        # (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
-        # sample-to-sample noise (vibration, aliased rotor harmonics), while the smooth
-        # motion of the vehicle barely enters it at IMU rates
-        d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
-        gain = _lowpass_gain(dt, prm[R_ACC_LP])
-        if cfg[C_AVAR] == 2:
-            # VQF's filter start: the mean of the samples so far until the low-pass's own
-            # gain takes over, so that the first seconds are weighed by the noise measured,
-            # not by a variance growing from zero (which trusted the first, vibrating means)
-            x[X_NAVAR] += 1.0
-            gain = max(gain, 1.0 / x[X_NAVAR])
-        x[X_AVAR] += gain * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
+    if cfg[C_AVAR] >= 1 and dt > 0:  # the accelerometer's noise on line
+        track_accel_noise(cfg, prm, x, dt)
     # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
     g = prm[R_GRAV]

@@ -12,6 +12,7 @@ Nothing is allocated inside the loop.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any, ClassVar, Literal, NamedTuple
 
@@ -220,6 +221,7 @@ from windahrs.core.predict import (
     _predict_add,
     _predict_es,
     add_held_sample_noise,
+    track_accel_noise,
 )
 from windahrs.core.quat import (
     _dcm9,
@@ -446,6 +448,8 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
         return
     remember_specific_force(x, flags, fx, fy, fz, dt)
+    if cfg[C_AVAR] >= 1 and dt > 0:  # its noise, the input's density in the next prediction
+        track_accel_noise(cfg, prm, x, dt)
     if cfg[C_DRAG] == 1:  # ... and may also read the drag in it
         fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
@@ -734,6 +738,8 @@ def make_state(
     if p.rest_detection == "auto":
         cfg[C_REST] = REST_ON if cfg[C_TILT] == 1 else REST_OFF
     cfg[C_AVAR] = (2 if p.accel_noise_mean_start else 1) if (p.accel_noise_online and p.accel_lowpass > 0) else 0
+    if kind == "ins-wind":  # the INS takes the accelerometer as its input: its noise from the flight
+        cfg[C_AVAR] = 2 if p.accel_noise_measured else 0
     cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
     cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
     cfg[C_INI] = int(ini is not None)
@@ -777,6 +783,10 @@ def make_state(
     # initial spreads: the given initial state's, else the parameters'
     prm[R_P0_ATT] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
     prm[R_P0_YAW] = p.init_yaw**2 if ini is None or ini.sigma_att is None else 0.0
+    if kind == "ins-wind" and p.init_yaw == 0 and ini is None and cfg[C_WAIT_MAG] == 0:
+        # an INS with nothing to give it a heading at the start (no magnetometer, no site
+        # field): its heading is unknown, and only the GNSS accelerations turn it
+        prm[R_P0_YAW] = math.pi**2
     prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
     prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
     prm[R_P0_W] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2

@@ -18,12 +18,14 @@ from windahrs.core.layout import (
     _JIT,
     _JIT_FMA,
     C_ADD,
+    C_AVAR,
     C_IBA,
     C_IBG,
     C_IBM,
     C_IV,
     C_IW,
     C_N,
+    R_ACC_LP,
     R_GRAV,
     R_HOLD_DT,
     R_SA2,
@@ -38,10 +40,12 @@ from windahrs.core.layout import (
     W_M,
     W_T,
     W_X,
+    X_AVAR,
     X_BA,
     X_BG,
     X_DF,
     X_DW,
+    X_NAVAR,
     X_Q,
     X_V,
 )
@@ -61,8 +65,32 @@ from windahrs.core.quat import (
 ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_yaw", "init_bias", "init_window")
 HELD_SAMPLE_PARAMS = ("unmeasured_motion_dt",)
 GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
-INS_PARAMS = ("accel_noise", "accel_bias_noise", "init_accel_bias", "init_v")
+INS_PARAMS = ("accel_noise", "accel_noise_measured", "accel_bias_noise", "init_accel_bias", "init_v")
+
+#: The time constant of the accelerometer noise measured on line when no low-pass gives it, s
+#: (the INS; VQF's tau_acc, 3 s: long against one rotor's or gait's cycle, short against a
+#: change of throttle or terrain).
+NOISE_TAU = 3.0
 WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")
+
+
+@njit(inline="always", **_JIT)
+def track_accel_noise(cfg, prm, x, dt):
+    """The accelerometer's noise on line, from the differences of consecutive samples
+    (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
+    sample-to-sample noise (vibration, aliased rotor harmonics), while the smooth motion of
+    the vehicle barely enters it at IMU rates; low-passed over accel_lowpass (else
+    NOISE_TAU) into x[X_AVAR], per axis (m/s^2)^2 per sample. cfg[C_AVAR] 2: VQF's filter
+    start, the mean of the samples so far until the low-pass's own gain takes over, so that
+    the first seconds are weighed by the noise measured, not by a variance growing from zero.
+    Read by the gravity aid source (its R) and the INS's prediction (its input's density)."""
+    d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
+    tau = prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU
+    gain = 1.0 - math.exp(-dt / tau)
+    if cfg[C_AVAR] == 2:
+        x[X_NAVAR] += 1.0
+        gain = max(gain, 1.0 / x[X_NAVAR])
+    x[X_AVAR] += gain * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
 
 
 @njit(**_JIT_FMA)
@@ -216,13 +244,16 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     qaa = sg2 * dt + sb2 * dt**3 / 3.0
     qab = -sb2 * dt**2 / 2.0
     qbb = sb2 * dt
+    sa2 = prm[R_SA2]
+    if iv >= 0 and cfg[C_AVAR] >= 1:  # the INS input's density at least the noise measured
+        sa2 = max(sa2, x[X_AVAR] * dt)  # (a per-sample variance: density^2 = var * step)
     for k in range(3):
         P[k, k] += qaa
         P[k, ib + k] += qab
         P[ib + k, k] += qab
         P[ib + k, ib + k] += qbb
         if iv >= 0:
-            P[iv + k, iv + k] += prm[R_SA2] * dt
+            P[iv + k, iv + k] += sa2 * dt
         if iba >= 0:
             P[iba + k, iba + k] += prm[R_SBA2] * dt
         if cfg[C_IBM] >= 0:

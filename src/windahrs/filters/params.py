@@ -100,7 +100,17 @@ class EskfParams:
 
     Process (continuous densities): gyro_noise rad/s/sqrt(Hz); gyro_bias_noise
     rad/s^2/sqrt(Hz); accel_noise m/s^2/sqrt(Hz) (INS input); accel_bias_noise
-    m/s^3/sqrt(Hz) (0: no accelerometer-bias states in [ins-wind]); wind_noise,
+    m/s^3/sqrt(Hz) (0: no accelerometer-bias states in [ins-wind]); accel_noise_measured
+    ([ins-wind], [ins-drag]; default True): the INS input's density is at least the
+    accelerometer's noise measured on line in the flight (``sqrt(var dt)``, var the variance
+    of the sample-to-sample differences, ``|f_k - f_k-1|^2 / 6`` per axis, low-passed over
+    3 s, VQF's tau_acc: :func:`windahrs.core.predict.track_accel_noise`): a hard-mounted
+    IMU's rotor vibration (ANSFL's quadrotor: 3.7 m/s^2 per sample at 120 Hz, 0.34
+    m/s^2/sqrt(Hz)) is 17 times accel_noise's datasheet density, and an INS that takes its
+    velocity from such samples at the datasheet's density trusts them that much too far
+    (measured: ANSFL tilt with the GNSS on the IMU's clock, 5.47 -> 5.30 deg median over 16
+    flights; ALFA 4.44 -> 4.28; the simulated flights and PX4's pre-filtered logs, whose
+    measured noise is under accel_noise, unchanged); wind_noise,
     wind_noise_vertical m/s^2/sqrt(Hz) (high enough to follow turbulence: an airframe
     in gusts sees the wind change by about sigma * sqrt(2 V / L) per sqrt(s)). wind_vertical:
     estimate the vertical wind (False: hold it at zero, as PX4 EKF2's 2-D wind state; for
@@ -207,8 +217,10 @@ class EskfParams:
     Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
     init_wind m/s, init_accel_bias m/s^2. init_yaw rad: the attitude's spread about the nav
     vertical instead of init_att's (at the start and wherever a reset sets the attitude's
-    spread again; 0, the default: init_att's), for a start whose heading nothing measures
-    yet (no magnetometer; docs/estimators.md, docs/RESULTS.md section 15).
+    spread again; 0, the default: init_att's, except for [ins-wind] without a magnetometer,
+    whose heading nothing measures at the start: pi, unknown, until the GNSS accelerations
+    turn it), for a start whose heading nothing measures yet (docs/estimators.md,
+    docs/RESULTS.md sections 15 and 16).
 
     Start and recovery. init_window s: without a given initial state, the attitude is
     initialised from the mean specific force over the first init_window seconds of IMU
@@ -271,6 +283,7 @@ class EskfParams:
     gyro_noise: float = 0.01 * DEG
     gyro_bias_noise: float = 2e-5
     accel_noise: float = 2e-3 * G0
+    accel_noise_measured: bool = True
     accel_bias_noise: float = 1e-4
     wind_noise: float = 0.5
     wind_noise_vertical: float = 0.3
@@ -592,11 +605,13 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
     field: the filter then fuses raw samples (accel_lowpass = mag_lowpass = 0, whose means
     are correlated from sample to sample), adds no rate-proportional process noise
     (gyro_scale_noise = 0) and has no magnetic disturbance checks (mag_norm_gate =
-    mag_dip_gate = 0, mag_3d_needs_site off). heading_model is kept (it matters only with
-    mag_mode "heading")."""
+    mag_dip_gate = 0, mag_3d_needs_site off) and takes the INS input's density as given, not
+    measured (accel_noise_measured off: the measure also holds the motion's own sample-to-sample
+    changes). heading_model is kept (it matters only with mag_mode "heading")."""
     b = base or EskfParams()
     ch: dict[str, Any] = {
         "accel_lowpass": 0.0,
+        "accel_noise_measured": False,
         "mag_lowpass": 0.0,
         "gyro_scale_noise": 0.0,
         "mag_norm_gate": 0.0,
