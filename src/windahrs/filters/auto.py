@@ -18,13 +18,14 @@ no GNSS, no air data        [mekf] with its field defaults; the magnetometer whe
 
 A GNSS stream the flight declares unsynchronised (``meta["gnss.timing_sigma_s"]`` above
 :data:`MAX_GNSS_TIMING_S`) counts as absent, and so does a GNSS stream on a flight without
-a magnetometer (or with ``mag_mode=off``): the INS starts at yaw 0 with init_att's spread
-(10 deg), and GNSS velocity fused under a heading that is wrong by tens of degrees tilts it.
-PX4's EKF2 fuses GNSS only once its yaw is aligned (by the magnetometer, or in flight by
-its GSF yaw estimator), which windahrs does not have yet. Measured on the ANSFL quadrotor
-(no magnetometer) with its GNSS moved onto the IMU's clock by ``--align``: [ins-wind] 15.8
-deg median tilt on the even flights, 3.6 deg started at the reference's attitude (heading
-included), [mekf] 4.7 (docs/RESULTS.md, section 15). After the run, an INS that fails the tilt check
+a magnetometer (or with ``mag_mode=off``): the INS starts with its heading unknown (init_yaw
+pi, its default then), and until the GNSS accelerations turn it, GNSS velocity fused under a
+heading wrong by tens of degrees tilts it. PX4's EKF2 fuses GNSS only once its yaw is
+aligned (by the magnetometer, or in flight by its GSF yaw estimator), which windahrs does
+not have yet. Measured on the ANSFL quadrotor (no magnetometer) with its GNSS moved onto the
+IMU's clock by ``--align``, median tilt on the even / odd flights: [ins-wind] 5.43 / 4.84
+deg, [mekf] 4.69 / 6.40, better on one half and worse on the other (docs/RESULTS.md,
+sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's 10 deg). After the run, an INS that fails the tilt check
 is replaced by the run without GNSS when that one fails it for less time (see :meth:`Auto.run`).
 
 Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
