@@ -25,8 +25,9 @@ aligned (by the magnetometer, or in flight by its GSF yaw estimator), which wind
 not have yet. Measured on the ANSFL quadrotor (no magnetometer) with its GNSS moved onto the
 IMU's clock by ``--align``, median tilt on the even / odd flights: [ins-wind] 5.43 / 4.84
 deg, [mekf] 4.69 / 6.40, better on one half and worse on the other (docs/RESULTS.md,
-sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's 10 deg). After the run, an INS that fails the tilt check
-is replaced by the run without GNSS when that one fails it for less time (see :meth:`Auto.run`).
+sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's 10 deg). After the
+run, an INS that fails the tilt check is replaced by the run without GNSS when that one fails
+it for less time (see :meth:`Auto.run`).
 
 Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
 subtracts ``(w - b_g) x V_air`` from the specific force, the centripetal acceleration of a
