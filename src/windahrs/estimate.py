@@ -127,7 +127,8 @@ class Estimate:
     the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
     [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
     the mean specific force (lost gravity); ``"bias"``: (K, 3) rows [t_start s, t_end s,
-    largest axis deg/s] where the gyro-bias estimate was beyond 2 deg/s; ``"imu"``: (K, 4) rows [t s, change of the
+    largest axis deg/s] where the gyro-bias estimate was beyond 2 deg/s for 3 s;
+    ``"imu"``: (K, 4) rows [t s, change of the
     angular rate rad/s, of the specific force m/s^2, outcome: 1 beyond the sensor's range,
     2 a spike (both not propagated), 3 motion (propagated one sample late)] of the IMU
     samples the estimator's screen held (:mod:`windahrs.core.imu_screen`). flags: (N,)
@@ -251,8 +252,9 @@ class Estimate:
                        f"from t = {t0:.1f} to {t1:.1f} s (lost gravity?)")
         bias = self.alerts.get("bias")
         if bias is not None and len(bias):
-            out.append(f"{self.filter}: gyro bias estimated beyond 2 deg/s (up to {bias[:, 2].max():.1f} deg/s, "
-                       f"{len(bias)} span(s) from t = {bias[0, 0]:.1f} s): more than a calibrated gyro's, "
+            out.append(f"{self.filter}: gyro bias estimated beyond 2 deg/s for 3 s or more (up to "
+                       f"{bias[:, 2].max():.1f} deg/s, {len(bias)} span(s) from t = {bias[0, 0]:.1f} s): "
+                       "more than a calibrated gyro's, "
                        "an attitude error absorbed into the bias?")
         held = self.alerts.get("imu")
         if held is not None and np.any(held[:, 3] < 3):

@@ -76,7 +76,7 @@ FLAGS: dict[str, tuple[int, str]] = {
     "values_repaired": (22, "a sample set to NaN at the edge (infinite, or beyond the sensor's range)"),
     "mag_drift": (23, "magnetic field in the body drifting from what the attitude predicts (slow disturbance)"),
     "air_drift": (24, "airspeed changing unlike the GNSS velocity along the nose (a blocked or drifting pitot)"),
-    "bias_large": (25, "gyro-bias estimate beyond 2 deg/s (an attitude error absorbed into the bias?)"),
+    "bias_large": (25, "gyro-bias estimate beyond 2 deg/s for 3 s (an attitude error absorbed into the bias?)"),
 }
 #: A sensor repeating its sample exactly for at least this long, s (and STUCK_SAMPLES samples),
 #: is stuck: the noise of MEMS inertial and magnetic sensors and of pitot and vane transducers
