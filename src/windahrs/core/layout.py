@@ -231,7 +231,8 @@ X_TREST = X_AVAR + 31  # when the current rest began, s (NaN: moving)
 X_TRFUSE = X_AVAR + 32  # when the rest measurement was last fused, s
 X_JLAG = X_AVAR + 33  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
-N_X = X_AVAR + 42
+X_NGAIN = X_AVAR + 42  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
+N_X = X_AVAR + 44
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

@@ -46,6 +46,7 @@ from windahrs.core.layout import (
     X_DF,
     X_DW,
     X_NAVAR,
+    X_NGAIN,
     X_Q,
     X_V,
 )
@@ -85,8 +86,12 @@ def track_accel_noise(cfg, prm, x, dt):
     the first seconds are weighed by the noise measured, not by a variance growing from zero.
     Read by the gravity aid source (its R) and the INS's prediction (its input's density)."""
     d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
-    tau = prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU
-    gain = 1.0 - math.exp(-dt / tau)
+    if dt == x[X_NGAIN]:  # (a steady IMU rate: the exponential once)
+        gain = x[X_NGAIN + 1]
+    else:
+        tau = prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU
+        gain = 1.0 - math.exp(-dt / tau)
+        x[X_NGAIN], x[X_NGAIN + 1] = dt, gain
     if cfg[C_AVAR] == 2:
         x[X_NAVAR] += 1.0
         gain = max(gain, 1.0 / x[X_NAVAR])
