@@ -163,12 +163,12 @@ def test_usque_levels_an_upside_down_start_too() -> None:
     assert np.degrees(attitude_errors(est, flight).tilt[est.t > 15.0]).max() < 3.0
 
 
-@pytest.mark.parametrize("spec", ["usque", "ekf7:accel_lowpass=0"])
+@pytest.mark.parametrize("spec", ["usque:accel_lowpass=0", "ekf7:accel_lowpass=0"])
 def test_heading_is_taken_again_after_gravity_levels_an_upside_down_start(spec: str) -> None:
     # levelling a 180 deg roll turns the attitude about a horizontal axis, which leaves the
     # heading half a turn off: the next field sample turns it back (core.reset.retake_heading),
-    # instead of after a second reset_timeout (ekf7 on raw samples, as usque: the 3 s mean of
-    # its field defaults keeps the fixed wing's turns, 4 deg here)
+    # instead of after a second reset_timeout (on raw samples: the 3 s mean of their field
+    # defaults keeps the fixed wing's turns, 4 deg here)
     flight = wa.simulate("fixedwing", seed=3, wind=0.0, duration=12.0)
     with pytest.warns(EstimatorWarning):
         est = wa.estimator(spec).run(flight, initial=_upside_down(flight))

@@ -565,9 +565,9 @@ def test_heading_across_180_deg() -> None:
 
 
 def test_gates() -> None:
-    """The fixed wing's manoeuvres trip the ``| |f| - g |`` gate; tight gates reject some
-    updates of each sensor."""
-    acc = Usque().run(fixedwing()).innovations["accel"].accepted
+    """The fixed wing's manoeuvres trip the ``| |f| - g |`` gate of raw samples (EskfParams():
+    no low-pass); tight gates reject some updates of each sensor."""
+    acc = Usque(EskfParams()).run(fixedwing()).innovations["accel"].accepted
     assert acc.any() and not acc.all()
     for params in (EskfParams(gate_accel=1.0, gate_mag=1.0),
                    EskfParams(mag_mode="heading", gate_mag=1.0, accel_norm_gate=0.5)):  # fmt: skip
@@ -583,7 +583,7 @@ def test_initial_state_normalised_and_mag_bias_ignored() -> None:
     a = Usque().run(f, initial=ini)
     b = Usque().run(f, initial=dataclasses.replace(ini, q_nb=-2.0 * ini.q_nb))
     np.testing.assert_allclose(quat_log(quat_mul(quat_conj(a.q_nb), b.q_nb)), 0.0, atol=1e-12)
-    c = Usque(EskfParams(init_mag_bias=1e-6)).run(f)
+    c = Usque(Usque.default_params.replace(init_mag_bias=1e-6)).run(f)
     assert c.state_labels == ("att_x", "att_y", "att_z", "bg_x", "bg_y", "bg_z")
     assert_identical(c, Usque().run(f))
 
@@ -627,10 +627,11 @@ def test_imu_only_unknown_site_and_bad_params() -> None:
 
 def test_registry_runs_usque() -> None:
     est = make_estimator("usque")
-    assert type(est) is Usque and est.params == Usque().params == EskfParams()
+    assert type(est) is Usque and est.params == Usque().params == Usque.default_params
+    assert Usque.default_params == EskfParams(accel_lowpass=3.0, accel_noise_online=True)
     spec = "usque:mag_mode=heading:gate_mag=2.5"
     est = make_estimator(spec)
-    assert type(est) is Usque and est.params == EskfParams(mag_mode="heading", gate_mag=2.5)
+    assert type(est) is Usque and est.params == Usque.default_params.replace(mag_mode="heading", gate_mag=2.5)
     out = est.run(fixedwing())
     assert out.filter == spec and out.innovations["mag"].nu.shape[1] == 1
 

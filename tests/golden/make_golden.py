@@ -54,6 +54,8 @@ REGENERATED = {
     "ekf7": ("stop 19", "gravity as mekf takes it in the field (accel_lowpass 3 s, accel_noise_online): "
              "max 0.146 rad from stop 18 (fixedwing_8: the mean keeps a coordinated turn's acceleration), "
              "0.030 rad on quadrotor_8; the matched cases unchanged"),
+    "usque": ("stop 19", "the same gravity as ekf7 (accel_lowpass 3 s, accel_noise_online); the matched "
+              "cases unchanged"),
 }
 #: Physically tuned filters as the reproduction builds them (matched to the sensors).
 MATCHED = ("ekf7", "mekf", "usque", "ins-wind", "mekf-air")
@@ -183,6 +185,7 @@ def detail_cases() -> list[tuple[str, str, str, EskfParams | None, bool]]:
 DETAIL_DEFAULTS_OF_ADDD942: dict[str, dict[str, Any]] = {
     "mekf": {"accel_noise_online": False},
     "ekf7": {"accel_lowpass": 0.0, "accel_noise_online": False},
+    "usque": {"accel_lowpass": 0.0, "accel_noise_online": False},
 }
 
 
