@@ -542,8 +542,9 @@ class Usque(Estimator):
     #: gravity as [mekf] and [ekf7] take it in the field (the 3 s mean, the accelerometer's
     #: noise on line; stop 19): ANSFL tilt 25.4 -> 5.14 deg (even 4.71, odd 6.38; vqf 5.56),
     #: BROAD total / inclination 3.31 / 2.06 -> 2.02 / 1.26; the simulated quadrotor
-    #: unchanged (0.42 -> 0.41 deg, 8 m/s), the simulated fixed wing worse (1.35 -> 3.94: the
-    #: mean keeps its coordinated turns). The reproduction's matched runs take raw samples.
+    #: unchanged (0.42 -> 0.41 deg, 8 m/s), fixed wings worse (simulated 1.35 -> 3.94, ALFA
+    #: 18.6 -> 25.5: the mean keeps their coordinated turns). The reproduction's matched runs
+    #: take raw samples.
     default_params: ClassVar[EskfParams] = EskfParams(accel_lowpass=3.0, accel_noise_online=True)
 
     @classmethod
