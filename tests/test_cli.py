@@ -181,6 +181,20 @@ def test_damaged_estimate_file_gives_store_error(
         load_estimate(cut)
 
 
+def test_filters_lists_one_estimators_parameters(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["filters", "mekf"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("mekf: error-state EKF")
+    assert "  accel_lowpass               3.0\n" in out  # [mekf]'s field default, not EskfParams'
+    assert "gnss_sigma" not in out  # a field [mekf] does not use is not offered
+    assert main(["filters", "mekf:accel_lowpass=1"]) == 0  # a spec: its overrides shown
+    assert "  accel_lowpass               1\n" in capsys.readouterr().out
+    assert main(["filters", "vqf"]) == 0
+    assert "tau_acc" in capsys.readouterr().out
+    assert main(["filters", "auto"]) == 0
+    assert "passed on to the estimator it chooses" in capsys.readouterr().out
+
+
 def test_estimate_with_params_file_and_bad_names(
     gusty_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -171,7 +171,9 @@ CASES: dict[str, Case] = {
     "info-extra-arg": Case("info {flight} {flight}", "unrecognized"),
     "info-no-arg": Case("info", "FILE"),
     # ---- filters and the top level --------------------------------------------------------------------------
-    "filters-extra": Case("filters mekf", "unrecognized"),
+    "filters-extra": Case("filters mekf ekf7", "unrecognized"),
+    "filters-unknown": Case("filters nope", "unknown 'nope'; known filters"),
+    "filters-bad-spec": Case("filters mekf:nope=1", "nope"),
     "filters-option": Case("filters --bogus", "--bogus"),
     "no-command": Case("", "COMMAND"),
     "unknown-command": Case("fly", "'fly'"),

@@ -21,11 +21,13 @@ output file), numbers ``_number`` (finite), seeds ``_seed`` and run counts ``_co
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import shutil
 import signal
 import sys
+import textwrap
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -595,12 +597,28 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
 
 
 def _cmd_filters(args: argparse.Namespace) -> int:
-    from windahrs.filters.registry import REGISTRY, names
+    from windahrs.filters.registry import REGISTRY, make_estimator, names
 
-    available = set(names())
-    for name, (_, _, text) in REGISTRY.items():
-        mark = "" if name in available else "  (not installed)"
-        print(f"{name:<14}{text}{mark}")
+    if args.name is None:
+        available = set(names())
+        for name, (_, _, text) in REGISTRY.items():
+            mark = "" if name in available else "  (not installed)"
+            print(f"{name:<14}{text}{mark}")
+        return 0
+    est = make_estimator(args.name)  # (an unknown or uninstalled name: its error, naming the known ones)
+    print(f"{args.name}: {REGISTRY[args.name.split(':')[0]][2]}")
+    params = getattr(est, "params", None)
+    fields = getattr(type(est), "param_names", None)
+    if params is None:  # auto: passed on to the estimator it chooses
+        print("parameters (passed on to the estimator it chooses: windahrs filters mekf, windahrs filters "
+              "ins-wind):")
+        print(textwrap.fill(", ".join(sorted(fields()) if fields is not None else []), width=100,
+                            initial_indent="  ", subsequent_indent="  "))
+        return 0
+    used = sorted(fields()) if fields is not None else [f.name for f in dataclasses.fields(params)]
+    print(f"parameters ({len(used)}; set them as {args.name.split(':')[0]}:NAME=VALUE, or in a --params TOML file):")
+    for name in used:
+        print(f"  {name:<28}{getattr(params, name)!r}")
     return 0
 
 
@@ -1090,7 +1108,12 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=_file_path, default=None, metavar="FILE", help="also write .json or a text table")
     b.set_defaults(func=_cmd_bench_data)
 
-    fl = sub.add_parser("filters", help="list the estimators", description="List the registered estimators.")
+    fl = sub.add_parser(
+        "filters", help="list the estimators, or one estimator's parameters",
+        description="List the registered estimators; with NAME, the parameters that estimator takes and their "
+        "defaults (what a spec NAME:FIELD=VALUE or a --params file may set).",
+    )
+    fl.add_argument("name", nargs="?", default=None, metavar="NAME", help="an estimator (e.g. mekf)")
     fl.set_defaults(func=_cmd_filters)
     return p
 
