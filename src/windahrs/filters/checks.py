@@ -129,11 +129,15 @@ def tilt_alerts(
     off = np.linalg.norm(mean, axis=1) / (2.0 * flight.site.gravity)
     angle = np.degrees(2.0 * np.arcsin(np.clip(off, 0.0, 1.0)))
     over = (angle > limit_deg) & (t >= t[0] + tau) & ~unmeasured
-    rows = []
+    return _spans(t, over, angle, hold_s)
+
+
+def _spans(t: F64, over: NDArray[np.bool_], value: F64, hold_s: float) -> F64:
+    """The runs of ``over`` that last at least ``hold_s``: (K, 3) rows [t_start s, t_end s,
+    the largest of ``value`` in the run]."""
     edges = np.flatnonzero(np.diff(np.r_[0, over.astype(np.int8), 0]))
-    for i0, i1 in zip(edges[::2], edges[1::2], strict=True):
-        if t[i1 - 1] - t[i0] >= hold_s:
-            rows.append((t[i0], t[i1 - 1], float(angle[i0:i1].max())))
+    rows = [(t[i0], t[i1 - 1], float(value[i0:i1].max()))
+            for i0, i1 in zip(edges[::2], edges[1::2], strict=True) if t[i1 - 1] - t[i0] >= hold_s]
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
@@ -148,10 +152,7 @@ def bias_alerts(est: Estimate, *, limit_deg_s: float = BIAS_LIMIT_DEG_S, hold_s:
     over = big > math.radians(limit_deg_s)  # (NaN rows: not over)
     if not over.any():
         return np.empty((0, 3))
-    edges = np.flatnonzero(np.diff(np.r_[0, over.astype(np.int8), 0]))
-    rows = [(est.t[i0], est.t[i1 - 1], math.degrees(float(np.nanmax(big[i0:i1]))))
-            for i0, i1 in zip(edges[::2], edges[1::2], strict=True) if est.t[i1 - 1] - est.t[i0] >= hold_s]
-    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+    return _spans(est.t, over, np.degrees(big), hold_s)
 
 
 def with_repairs(est: Estimate, flight: Flight) -> Estimate:
