@@ -90,12 +90,10 @@ def _at(t: F64, t_est: F64) -> NDArray[np.int64]:
 
 
 def _initialised_at(est: Estimate) -> float:
-    """The time of the estimate's first initialised sample, s (its covariance's first finite
-    row; the first sample for an estimate without a covariance)."""
-    if est.cov is None or len(est.cov) == 0:
-        return float(est.t[0])
-    ok = np.isfinite(est.cov[:, 0, 0])
-    return float(est.cov_t[int(np.argmax(ok))]) if ok.any() else math.inf
+    """The time of the estimate's first initialised sample, s (:attr:`Estimate.first_initialised`;
+    inf if it never initialised)."""
+    i = est.first_initialised
+    return float(est.t[i]) if i < len(est.t) else math.inf
 
 
 def mag_drift_share(est: Estimate, flight: Flight, tau: float = MAG_DRIFT_TAU) -> tuple[F64, F64]:

@@ -198,6 +198,15 @@ class Estimate:
         """The sample index of each of the covariance's rows."""
         return np.arange(len(self.t)) if self.cov_index is None else self.cov_index
 
+    @property
+    def first_initialised(self) -> int:
+        """The index of the first sample after the estimator initialised: its covariance's
+        first finite row (NaN until then); 0 without a covariance, ``len(t)`` if it never did."""
+        if self.cov is None or len(self.cov) == 0:
+            return 0
+        ok = np.isfinite(self.cov[:, 0, 0])
+        return int(self.cov_rows[np.argmax(ok)]) if ok.any() else len(self.t)
+
     def block(self, prefix: str) -> F64 | None:
         """Covariance block (M, k, k) of the dimensions whose labels start with ``prefix``
         (e.g. "att", "bg", "wind"), or None when absent; its rows at :attr:`cov_t`."""

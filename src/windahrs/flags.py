@@ -307,9 +307,7 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         if on.any():
             put("air_drift", _holding(ta, on, t, lims.get("air") or absent_after(ta)))
     if est.cov is not None and len(t):  # (the covariance is NaN until initialisation)
-        ok = np.isfinite(est.cov[:, 0, 0])
-        first = int(est.cov_rows[np.argmax(ok)]) if ok.any() else len(t)
-        put("not_initialised", np.arange(len(t)) < first)
+        put("not_initialised", np.arange(len(t)) < est.first_initialised)
     return out
 
 
