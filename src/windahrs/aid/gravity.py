@@ -97,6 +97,28 @@ PARAMS = (
 
 
 @njit(inline="always", **_JIT)
+def blend_mean(prm, x, a, fx, fy, fz):
+    """The low-passed specific force x[X_FBAR] (already carried into this body frame by
+    kernel._rotate_lowpass) after the sample f with gain a; returns the new mean. With
+    accel_lowpass_bias its bias sensitivity J ages with it: the new sample carries no
+    rotation error yet."""
+    x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
+    x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
+    x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
+    if prm[R_ACC_LAGB] > 0:
+        for i in range(9):
+            x[X_JLAG + i] *= 1.0 - a
+    return x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
+
+
+@njit(inline="always", **_JIT)
+def accel_variance(cfg, prm, x):
+    """The gravity measurement's variance per axis: accel_sigma^2, plus the accelerometer's
+    noise measured on line (core.predict.track_accel_noise) with accel_noise_online."""
+    return prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
+
+
+@njit(inline="always", **_JIT)
 def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     """The accelerometer of IMU sample ``row`` = [w_b, f_b] at t s, after the prediction
     over dt s: the specific force (compensated, optionally low-passed) as a measurement of
@@ -127,14 +149,8 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         a = _lowpass_gain(dt, prm[R_ACC_LP])
         if has_k:
             fx, fy, fz = fx - k0, fy - k1, fz - k2
-        x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
-        x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
-        x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
-        fx, fy, fz = x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
+        fx, fy, fz = blend_mean(prm, x, a, fx, fy, fz)
         has_k = False
-        if prm[R_ACC_LAGB] > 0:
-            for i in range(9):  # the new sample carries no rotation error yet
-                x[X_JLAG + i] *= 1.0 - a
     sensor = np.int64(INN_ACCEL)
     if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
@@ -157,7 +173,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     h0, h1, h2 = y0, y1, y2
     if has_k:
         h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
-    var = prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
+    var = accel_variance(cfg, prm, x)
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
     ib = cfg[C_IBG]

@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from windahrs.aid.gravity import LOST_COS
+from windahrs.aid.gravity import LOST_COS, accel_variance, blend_mean
 from windahrs.aid.mag import heading_reset, mag_reference, measured_heading
 from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
@@ -75,7 +75,6 @@ from windahrs.core.layout import (
     MAG_OFF,
     N_SENSORS,
     R_ACC_LP,
-    R_ACC_VAR,
     R_GATE2_ACC,
     R_GATE2_MAG,
     R_GRAV,
@@ -87,9 +86,7 @@ from windahrs.core.layout import (
     S_FBAR,
     SENSOR_STREAMS,
     SENSORS,
-    X_AVAR,
     X_BG,
-    X_FBAR,
     X_Q,
     KernelState,
 )
@@ -380,13 +377,9 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
         _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
         if cfg[C_AVAR] >= 1:
             track_accel_noise(cfg, prm, x, dt)
-    var = prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
+    var = accel_variance(cfg, prm, x)
     if flags[S_FBAR] == 1:
-        a = _lowpass_gain(dt, prm[R_ACC_LP])
-        x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
-        x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
-        x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
-        fx, fy, fz = x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
+        fx, fy, fz = blend_mean(prm, x, _lowpass_gain(dt, prm[R_ACC_LP]), fx, fy, fz)
     nu = work[U_NU]
     g = prm[R_GRAV]
     f_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
