@@ -166,6 +166,9 @@ def _points_within(t_events: F64, t: F64, lim: float) -> NDArray[np.bool_]:
     return _points(t_events[(t_events >= t[0] - lim) & (t_events <= t[-1] + lim)], t)
 
 
+#: The flag of each span alert the checks of windahrs.filters.checks leave in Estimate.alerts.
+_ALERT_FLAGS = {"tilt": "tilt_lost", "bias": "bias_large"}
+
 #: The repair kinds per flag (windahrs.repair.REPAIR_KINDS; "unsortable" rows have no time).
 _REPAIRED = {"stamps_repaired": ("reordered", "duplicates"), "values_repaired": ("infinite", "out_of_range")}
 
@@ -283,10 +286,9 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
                 put(f"{key}_disturbed", _holding(inn.t, ~inn.accepted & nan, t, hold))
     for reset_rows in est.resets.values():
         put("reset", _points(reset_rows[:, 0], t))
-    for t0, t1, _ in est.alerts.get("tilt", ()):
-        put("tilt_lost", (t >= t0) & (t <= t1))
-    for t0, t1, _ in est.alerts.get("bias", ()):
-        put("bias_large", (t >= t0) & (t <= t1))
+    for alert, flag in _ALERT_FLAGS.items():  # the checks' spans (windahrs.filters.checks)
+        for t0, t1, _ in est.alerts.get(alert, ()):
+            put(flag, (t >= t0) & (t <= t1))
     if "gnss" in est.innovations or (est.v_n is not None and "gnss" in absent):
         put("fallback", absent.get("gnss", np.zeros(len(t), dtype=bool)))
     for name, (ts, on) in stream_flags(flight).items():  # onto the estimate's samples

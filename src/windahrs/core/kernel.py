@@ -784,8 +784,8 @@ def make_state(
     prm[R_P0_ATT] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
     prm[R_P0_YAW] = p.init_yaw**2 if ini is None or ini.sigma_att is None else 0.0
     if kind == "ins-wind" and p.init_yaw == 0 and ini is None and cfg[C_WAIT_MAG] == 0:
-        # an INS with nothing to give it a heading at the start (no magnetometer, no site
-        # field): its heading is unknown, and only the GNSS accelerations turn it
+        # an INS with nothing to give it a heading at the start (no magnetometer fused, and
+        # no initial state): its heading is unknown, and only the GNSS accelerations turn it
         prm[R_P0_YAW] = math.pi**2
     prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
     prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
