@@ -606,7 +606,8 @@ def _cmd_filters(args: argparse.Namespace) -> int:
             print(f"{name:<14}{text}{mark}")
         return 0
     est = make_estimator(args.name)  # (an unknown or uninstalled name: its error, naming the known ones)
-    print(f"{args.name}: {REGISTRY[args.name.split(':')[0]][2]}")
+    base = args.name.split(":")[0]
+    print(f"{args.name}: {REGISTRY[base][2]}")
     params = getattr(est, "params", None)
     fields = getattr(type(est), "param_names", None)
     if params is None:  # auto: passed on to the estimator it chooses
@@ -616,7 +617,7 @@ def _cmd_filters(args: argparse.Namespace) -> int:
                             initial_indent="  ", subsequent_indent="  "))
         return 0
     used = sorted(fields()) if fields is not None else [f.name for f in dataclasses.fields(params)]
-    print(f"parameters ({len(used)}; set them as {args.name.split(':')[0]}:NAME=VALUE, or in a --params TOML file):")
+    print(f"parameters ({len(used)}; set them as {base}:NAME=VALUE, or in a --params TOML file):")
     for name in used:
         print(f"  {name:<28}{getattr(params, name)!r}")
     return 0
