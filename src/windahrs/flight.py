@@ -23,6 +23,7 @@ range), never at one sample: a single spike is a glitch, not a unit.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -637,25 +638,32 @@ class Flight:
 REPAIRABLE: tuple[str, ...] = ("imu", "mag", "gnss", "air", "truth", "reference", "ref_wind")
 
 
+def _repair_entries(field: str, value: object, what: str) -> Iterator[tuple[str, str, object]]:
+    """Each (stream, kind, entry) of ``Flight.repairs`` or ``Flight.repair_times`` (``field``),
+    whose shape, streams (:data:`REPAIRABLE`) and kinds (``REPAIR_KINDS``) it checks on the
+    way; ``what``: the entries' name in the errors ("count", "times")."""
+    if not isinstance(value, dict):
+        raise FlightError(field, f"a dict stream -> {{kind: {what}}}", type(value).__name__)
+    for stream, kinds in value.items():
+        if stream not in REPAIRABLE:
+            raise FlightError(field, f"streams among {REPAIRABLE}", repr(stream))
+        if not isinstance(kinds, dict):
+            raise FlightError(f"{field}[{stream!r}]", f"a dict kind -> {what}", type(kinds).__name__)
+        for kind, entry in kinds.items():
+            if kind not in REPAIR_KINDS:
+                raise FlightError(f"{field}[{stream!r}]", f"kinds among {REPAIR_KINDS}", repr(kind))
+            yield stream, kind, entry
+
+
 def _check_repairs(repairs: object) -> dict[str, dict[str, int]]:
     """``Flight.repairs`` validated, as plain ints, zero counts and empty streams left out."""
-    if not isinstance(repairs, dict):
-        raise FlightError("repairs", "a dict stream -> {kind: count}", type(repairs).__name__)
     out: dict[str, dict[str, int]] = {}
-    for stream, counts in repairs.items():
-        if stream not in REPAIRABLE:
-            raise FlightError("repairs", f"streams among {REPAIRABLE}", repr(stream))
-        if not isinstance(counts, dict):
-            raise FlightError(f"repairs[{stream!r}]", "a dict kind -> count", type(counts).__name__)
-        for kind, n in counts.items():
-            if kind not in REPAIR_KINDS:
-                raise FlightError(f"repairs[{stream!r}]", f"kinds among {REPAIR_KINDS}", repr(kind))
-            if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0:
-                raise FlightError(f"repairs[{stream!r}][{kind!r}]", "a count (int >= 0)", repr(n))
-        kept = {kind: int(counts[kind]) for kind in REPAIR_KINDS if counts.get(kind)}
-        if kept:
-            out[stream] = kept
-    return out
+    for stream, kind, n in _repair_entries("repairs", repairs, "count"):
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0:
+            raise FlightError(f"repairs[{stream!r}][{kind!r}]", "a count (int >= 0)", repr(n))
+        if n:
+            out.setdefault(stream, {})[kind] = int(n)
+    return {stream: {k: c[k] for k in REPAIR_KINDS if k in c} for stream, c in out.items()}
 
 
 _RAW_NAMES = {"imu.w_b": "gyro", "imu.f_b": "accel", "mag.mag_b": "mag"}
@@ -748,29 +756,17 @@ def _missing_text(stream: object) -> str:
 def _check_repair_times(times: object) -> dict[str, dict[str, F64]]:
     """``Flight.repair_times`` validated: streams and kinds as ``repairs``', each (K,) finite
     times s, returned sorted as float64; empty arrays and streams left out."""
-    if not isinstance(times, dict):
-        raise FlightError("repair_times", "a dict stream -> {kind: times}", type(times).__name__)
     out: dict[str, dict[str, F64]] = {}
-    for stream, kinds in times.items():
-        if stream not in REPAIRABLE:
-            raise FlightError("repair_times", f"streams among {REPAIRABLE}", repr(stream))
-        if not isinstance(kinds, dict):
-            raise FlightError(f"repair_times[{stream!r}]", "a dict kind -> times", type(kinds).__name__)
-        kept: dict[str, F64] = {}
-        for kind, v in kinds.items():
-            where = f"repair_times[{stream!r}][{kind!r}]"
-            if kind not in REPAIR_KINDS:
-                raise FlightError(f"repair_times[{stream!r}]", f"kinds among {REPAIR_KINDS}", repr(kind))
-            try:
-                a = np.asarray(v, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise FlightError(where, "an array of times (s)", type(v).__name__) from None
-            if a.ndim != 1:
-                raise FlightError(where, "a 1-D array of times (s)", f"shape {a.shape}")
-            if not np.isfinite(a).all():
-                raise FlightError(where, "finite times (s)", "a non-finite value")
-            if len(a):
-                kept[kind] = np.sort(a)
-        if kept:
-            out[stream] = kept
+    for stream, kind, v in _repair_entries("repair_times", times, "times"):
+        where = f"repair_times[{stream!r}][{kind!r}]"
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise FlightError(where, "an array of times (s)", type(v).__name__) from None
+        if a.ndim != 1:
+            raise FlightError(where, "a 1-D array of times (s)", f"shape {a.shape}")
+        if not np.isfinite(a).all():
+            raise FlightError(where, "finite times (s)", "a non-finite value")
+        if len(a):
+            out.setdefault(stream, {})[kind] = np.sort(a)
     return out
