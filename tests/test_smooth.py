@@ -12,6 +12,7 @@ import pytest
 from scipy.linalg import expm
 
 import windahrs as wa
+from conftest import require_data
 from windahrs.core import smooth as S
 from windahrs.core.layout import C_OFF, INN_RESET
 from windahrs.estimate import EstimatorWarning
@@ -19,8 +20,9 @@ from windahrs.experiments.reproduce import MIN_WIND_NOISE
 from windahrs.filters.base import InitialState
 from windahrs.filters.params import matched_to
 from windahrs.filters.registry import make_estimator
+from windahrs.flight import ImuStream
 from windahrs.metrics import chi2_band, nees_attitude
-from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul
+from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul, quat_rotate_inv
 from windahrs.sim.scenario import Scenario, default_sensors, make_scenario, simulate
 from windahrs.sim.wind import low_altitude_params, random_walk_density
 
@@ -83,7 +85,8 @@ def test_equals_a_dense_numpy_rts() -> None:
     est = wa.estimator("mekf")
     run, rec = S.forward_record(est, flight)
     q_o, bg_o, P_o = _rts_oracle(est, rec)
-    sm = S.smooth(est, flight)
+    sm = S.smooth(est, flight, method="rts")
+    assert sm.meta["smoother"] == "rts"
     ok = rec.aux[:, S.A_INIT] == 1
     assert ok.sum() > 0.9 * len(ok)
     linked = S.backward(run.st.cfg, run.st.prm, rec.nom.copy(), rec.P.copy(), rec.aux, run.st.P.shape[0])
@@ -149,10 +152,17 @@ def test_resets_break_the_chain() -> None:
     k = int(np.searchsorted(flight.imu.t, t_reset))
     assert not linked[k - 1] and linked[k + 5 : k + 100].all()
     with pytest.warns(EstimatorWarning):
-        sm = S.smooth(est, flight, initial=upside)
-    # before the reset the smoother does not carry the levelled attitude back
+        sm = S.smooth(est, flight, initial=upside, method="rts")
+    # before the reset the RTS pass does not carry the levelled attitude back
     fwd_q = rec.nom[: k - 1, :4]
     np.testing.assert_allclose(np.abs(np.sum(sm.q_nb[k - 10 : k - 1] * fwd_q[-9:], axis=1)), 1.0, atol=0.05)
+    # the two-filter smoother takes the backward pass where the forward's reset says it was lost
+    with pytest.warns(EstimatorWarning):
+        tf = S.smooth(est, flight, initial=upside)
+    assert tf.meta["smoother"] == "two-filter"
+    err = np.degrees(np.linalg.norm(quat_log(quat_mul(quat_conj(flight.truth.q_nb), tf.q_nb)), axis=1))
+    fwd_err = np.degrees(np.linalg.norm(quat_log(quat_mul(quat_conj(flight.truth.q_nb), rec.nom[:, :4])), axis=1))
+    assert fwd_err[: k - 1].min() > 150.0 and err[: k - 1].max() < 10.0
 
 
 def test_refusals() -> None:
@@ -206,3 +216,92 @@ def test_cli_smooth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench-data", str(tmp_path), "--filters", "mekf,auto", "--smooth"]) == 0
     out = capsys.readouterr().out
     assert "mekf-smooth" in out and "auto-smooth" in out
+
+
+# --- the two-filter smoother ---------------------------------------------------------------
+
+
+def test_reversed_flight() -> None:
+    flight = wa.simulate("fixedwing", seed=0, wind=5.0, duration=5.0)
+    rev = S.reversed_flight(flight)
+    t = flight.imu.t
+    np.testing.assert_allclose(rev.imu.t, (t[0] + t[-1]) - t[::-1], rtol=0, atol=1e-12)
+    # reversed row j ends at the original t[N-1-j] and spans the original interval after it
+    np.testing.assert_array_equal(rev.imu.w_b[1:], -flight.imu.w_b[::-1][:-1])
+    np.testing.assert_array_equal(rev.imu.f_b, flight.imu.f_b[::-1])
+    np.testing.assert_array_equal(rev.gnss.v_n, -flight.gnss.v_n[::-1])
+    np.testing.assert_array_equal(rev.mag.mag_b, flight.mag.mag_b[::-1])
+    assert rev.air is None and rev.truth is None
+    # a rotation whose rate is exact over every interval: integrated backwards from the final
+    # attitude, the reversed gyro retraces it
+    tt = np.arange(400) * 0.01
+    phi = np.column_stack([np.sin(3 * tt), 0.7 * np.cos(2 * tt), 0.5 * np.sin(tt)])
+    q_true = quat_exp(phi)
+    w = np.zeros((len(tt), 3))
+    w[1:] = quat_log(quat_mul(quat_conj(q_true[:-1]), q_true[1:])) / 0.01
+    f = quat_rotate_inv(q_true, np.array([0.0, 0.0, -9.81]))
+    rev = S.reversed_flight(wa.Flight(imu=ImuStream(tt, w, f)))
+    q = q_true[-1]
+    for j in range(1, len(tt)):
+        q = quat_mul(q, quat_exp(rev.imu.w_b[j] * 0.01))
+        assert np.linalg.norm(quat_log(quat_mul(quat_conj(q_true[-1 - j]), q))) < 1e-9
+
+
+def test_two_filter_nees_in_band_and_better_than_rts() -> None:
+    # ins-wind on GNSS velocity without air data: every aid source reversible
+    sc = make_scenario("fixedwing", wind=5.0, duration=60.0)
+    est = _matched_ins_wind(sc)
+    runs = 6
+    nees, fwd_rmse, tf_rmse, rts_rmse = [], [], [], []
+    for seed in range(runs):
+        flight = simulate(sc, np.random.default_rng(seed)).replace(air=None)
+        fwd, tf, rts = est.run(flight), S.smooth(est, flight), S.smooth(est, flight, method="rts")
+        assert tf.meta["smoother"] == "two-filter" and rts.meta["smoother"] == "rts"
+        nees.append(nees_attitude(tf, flight, with_bias=False))
+        fwd_rmse.append(wa.score(fwd, flight).rmse_total_deg)
+        tf_rmse.append(wa.score(tf, flight).rmse_total_deg)
+        rts_rmse.append(wa.score(rts, flight).rmse_total_deg)
+    A = np.array(nees)[:, len(nees[0]) // 2 :]
+    lo, hi = chi2_band(3, runs)
+    assert lo < A.mean() < hi
+    assert np.mean((A.mean(axis=0) > lo) & (A.mean(axis=0) < hi)) > 0.9
+    assert all(s < 0.5 * f for s, f in zip(tf_rmse, fwd_rmse, strict=True)), (tf_rmse, fwd_rmse)
+    assert np.mean(tf_rmse) < np.mean(rts_rmse), (tf_rmse, rts_rmse)
+
+
+def test_two_filter_keeps_an_unobserved_heading() -> None:
+    flight = wa.simulate("quadrotor", seed=1, wind=0.0, duration=20.0)
+    flight = flight.replace(mag=None, gnss=None, air=None)
+    est = wa.estimator("mekf")
+    fwd, tf = est.run(flight), S.smooth(est, flight)
+    assert tf.meta["smoother"] == "two-filter"
+    e = quat_mul(tf.q_nb, quat_conj(fwd.q_nb))  # nav-frame difference: tilt only
+    ok = np.isfinite(e[:, 0])
+    np.testing.assert_allclose(e[ok, 3], 0.0, atol=1e-9)
+    assert np.degrees(np.abs(2 * np.arccos(np.clip(np.abs(e[ok, 0]), 0, 1)))).max() > 0.01  # it did smooth
+
+
+def test_method_choice_and_refusals() -> None:
+    flight = wa.simulate("fixedwing", seed=2, wind=5.0, duration=10.0)
+    assert S.reversible(make_estimator("mekf"), flight) is None  # mekf leaves the air data alone
+    assert "air data" in (S.reversible(make_estimator("ins-wind"), flight) or "")
+    assert "drag" in (S.reversible(make_estimator("ins-drag"), flight.replace(air=None)) or "")
+    assert S.smooth(make_estimator("ins-wind"), flight).meta["smoother"] == "rts"
+    with pytest.raises(ValueError, match="smoothing 'ins-wind' by two filters: the flight's air data"):
+        S.smooth(make_estimator("ins-wind"), flight, method="two-filter")
+    with pytest.raises(ValueError, match=r"method: expected one of auto, two-filter, rts, found 'fb'"):
+        S.smooth(make_estimator("mekf"), flight, method="fb")
+
+
+def test_two_filter_on_broad() -> None:
+    from windahrs.experiments.benchdata import broad_errors
+
+    flight = wa.read(require_data("broad", "15_undisturbed_fast_translation_A.hdf5"))
+    est = make_estimator("mekf")
+    fwd, tf = est.run(flight), S.smooth(est, flight)
+    f, s = broad_errors(fwd, flight), broad_errors(tf, flight)
+
+    def rms(x: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(x**2)))
+
+    assert rms(s.inclination) < 0.95 * rms(f.inclination) and rms(s.total) < 0.95 * rms(f.total)

@@ -105,17 +105,22 @@ def estimator(spec: str, **params: Any) -> Estimator:
     return built
 
 
-def smooth(estimator: str | Estimator, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
-    """The offline RTS smoother of an error-state estimator (a spec such as ``"ins-wind"`` or
+def smooth(
+    estimator: str | Estimator, flight: Flight, *, initial: InitialState | None = None, method: str = "auto"
+) -> Estimate:
+    """The offline smoother of an error-state estimator (a spec such as ``"ins-wind"`` or
     ``"auto"``, or an Estimator: ``mekf``, ``mekf-air``, ``ins-wind``, ``ins-drag``, ``auto``)
     over the whole flight (:mod:`windahrs.core.smooth`): the Estimate with the smoothed
-    attitude, gyro bias, velocity, wind and covariance, labelled ``NAME-smooth``. ValueError
-    naming an estimator it cannot smooth, or a flight beyond its memory budget."""
+    attitude, gyro bias, velocity, wind and covariance, labelled ``NAME-smooth``. method:
+    ``"auto"`` (two filters, forward and backward in time, where every sensor fused has a
+    time-reversed model; else Rauch-Tung-Striebel), ``"two-filter"`` or ``"rts"``;
+    ``Estimate.meta["smoother"]`` says which ran. ValueError naming an estimator it cannot
+    smooth, a method it cannot run on the flight, or a flight beyond its memory budget."""
     from windahrs.core.smooth import smooth as _smooth
     from windahrs.filters.registry import make_estimator
 
     est = make_estimator(estimator) if isinstance(estimator, str) else estimator
-    return _smooth(est, flight, initial=initial)
+    return _smooth(est, flight, initial=initial, method=method)
 
 
 def score(estimate: Estimate, flight: Flight, *, remove_heading: bool | None = None) -> Score:

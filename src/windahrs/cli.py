@@ -846,13 +846,15 @@ BENCH_ALIGN_HELP = (
 )
 
 SMOOTH_HELP_ONE = (
-    "offline: run the filter's RTS smoother over the whole flight (mekf, mekf-air, ins-wind, ins-drag, auto; "
-    "same as the spec NAME-smooth): attitude, bias, velocity, wind and covariance from the whole log; fails for "
+    "offline: run the filter's smoother over the whole flight (mekf, mekf-air, ins-wind, ins-drag, auto; "
+    "same as the spec NAME-smooth): attitude, bias, velocity, wind and covariance from the whole log, by two "
+    "filters forward and backward in time (Rauch-Tung-Striebel when the filter fuses air data or drag); fails for "
     "another filter"
 )
 SMOOTH_HELP_MANY = (
-    "offline: run each filter the RTS smoother takes (mekf, mekf-air, ins-wind, ins-drag, auto) as its smoother "
-    "(NAME-smooth); the others run as they are, with a note on stderr"
+    "offline: run each filter the smoother takes (mekf, mekf-air, ins-wind, ins-drag, auto) as its smoother "
+    "(NAME-smooth: two filters forward and backward in time, or Rauch-Tung-Striebel with air data or drag); the "
+    "others run as they are, with a note on stderr"
 )
 
 

@@ -1,7 +1,44 @@
-"""The offline Rauch-Tung-Striebel smoother of the error-state filters on the compiled core
-([mekf], [mekf-air], [ins-wind], [ins-drag], and [auto] when it picks one of them).
+"""The offline smoothers of the error-state filters on the compiled core ([mekf],
+[mekf-air], [ins-wind], [ins-drag], and [auto] when it picks one of them): a two-filter
+smoother where the flight allows it, else a Rauch-Tung-Striebel pass.
 
-Forward: the filter's own event loop (:func:`windahrs.core.kernel.run_events`) with a
+**Which.** :func:`smooth`'s default ``method="auto"`` runs the two-filter smoother when every
+aid source the estimator fuses on the flight has a time-reversed model (gravity, the
+magnetometer, GNSS velocity, rest: :func:`reversible`), and the RTS pass otherwise (air data,
+which a pitot reads from the nose, and the multirotor drag, which is dissipative).
+``Estimate.meta["smoother"]`` says which ran. Why two: the field defaults fuse the
+accelerometer and magnetometer as means over the last 3 s and 9 s (VQF's time constants),
+errors the RTS pass takes for white noise, so it carries the mean's lag back unchanged
+(BROAD, 7 trials, median inclination: forward 0.552 deg, RTS 0.593, two-filter 0.445;
+docs/RESULTS.md section 17). A backward pass's means cover the next seconds instead, and the
+two lags cancel in the fusion.
+
+**Two-filter** (Fraser and Potter 1969). The filter runs forward, and again on
+:func:`reversed_flight` (time reversed: the angular rate and velocities negated). At every
+IMU sample the two posteriors are fused as independent estimates by their covariances, on
+the error state about the forward one: ``d = x_b [-] x_f``, ``K = P_f (P_f + P_b)^-1``,
+``x_s = x_f [+] K d``, ``P_s = P_f - K P_f``. Details, each a physical reason:
+
+- the backward pass starts as the forward did, from its own first samples, when a
+  magnetometer gives it a heading; without one nothing would, and it starts from the forward
+  pass's last posterior (rates and velocities negated) with the filter's initial spreads;
+- with a magnetometer and no site field, each pass takes its heading datum from its own
+  first samples and its heading drifts with its own vertical gyro-bias error: the heading
+  between the passes, fitted as an offset plus a drift, is turned out of the backward pass;
+- where nothing measures the heading (no magnetometer, no GNSS velocity state), the
+  smoothed attitude keeps the forward pass's heading (two gyro integrations cannot improve
+  on one another's datum) and smooths the tilt;
+- a pass is not used over the span one of its own resets says it was lost (from when the
+  reset's sensor began to disagree to the reset);
+- passes that started on their own and differ by more than :data:`FUSE_LIMIT` (30 deg) are
+  not fused (no small error of one another): the forward pass stands there, unless its own
+  attitude spread is beyond the limit too;
+- before either pass has started the sample keeps the forward run's output and no covariance.
+
+Two records are kept (twice the RTS pass's memory, below); a flight whose two records exceed
+:data:`SMOOTH_BUDGET` is smoothed by the RTS pass instead.
+
+**RTS.** Forward: the filter's own event loop (:func:`windahrs.core.kernel.run_events`) with a
 smoothing record (``sm``; absent, ``None``, in every other run, so the compiled loop of a
 normal run has no smoothing code at all). For every IMU sample k it keeps the posterior at
 k (the state after every event before IMU sample k + 1, what ``Estimate`` row k holds): the
@@ -94,15 +131,21 @@ from windahrs.core.layout import (
 from windahrs.core.predict import _predict_es, add_held_sample_noise
 from windahrs.core.quat import _qexp, _qlog, _qmul, _qnormalize
 from windahrs.filters.base import Estimator
+from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
+
+    from numpy.typing import NDArray
 
     from windahrs.estimate import Estimate
     from windahrs.filters.base import InitialState, Streamer
     from windahrs.flight import Flight, Site
 
-__all__ = ["SMOOTH_BUDGET", "SmoothRecord", "Smoothed", "smooth", "smooth_bytes", "smoothed_label", "supports"]
+__all__ = [
+    "METHODS", "SMOOTH_BUDGET", "SmoothRecord", "Smoothed", "reversed_flight", "reversible", "smooth", "smooth_bytes",
+    "smoothed_label", "supports",
+]  # fmt: skip
 
 #: The smoothing record a run may take at most, bytes (2 GiB): the covariance and nominal
 #: state of every IMU sample (module docstring); a longer flight is refused before any
@@ -398,15 +441,25 @@ def smoothed_label(label: str) -> str:
 
 
 def smooth(
-    est: Estimator, flight: Flight, *, initial: InitialState | None = None, label: str | None = None
+    est: Estimator,
+    flight: Flight,
+    *,
+    initial: InitialState | None = None,
+    label: str | None = None,
+    method: str = "auto",
 ) -> Estimate:
     """The smoothed Estimate of ``flight`` by ``est`` (the module docstring): attitude, gyro
     bias, velocity, wind and covariance at every IMU sample from the whole flight, the
     forward pass's innovations and resets. ``Estimate.filter`` is ``label`` (default
-    :func:`smoothed_label` of the estimator's). ValueError naming the estimator when it
-    cannot be smoothed, or when the record would exceed :data:`SMOOTH_BUDGET`."""
+    :func:`smoothed_label` of the estimator's). ``method``: ``"two-filter"``, ``"rts"``, or
+    ``"auto"`` (the default: two-filter where :func:`reversible` allows it, else RTS); the
+    Estimate's ``meta["smoother"]`` says which ran. ValueError naming the estimator when it
+    cannot be smoothed (or not by the method asked), or when the record would exceed
+    :data:`SMOOTH_BUDGET`."""
     from windahrs.filters.auto import Auto
 
+    if method not in METHODS:
+        raise ValueError(f"smoothing: method: expected one of {', '.join(METHODS)}, found {method!r}")
     why = supports(est)
     if why is not None:
         raise ValueError(why)
@@ -414,7 +467,204 @@ def smooth(
     if isinstance(est, Auto):
         out: Estimate = est.run(flight, initial=initial, smooth=True)
         return dataclasses.replace(out, filter=name)
-    return _smooth_compiled(est, flight, initial, name)
+    not_reversible = reversible(est, flight)
+    if method == "two-filter" and not_reversible is not None:
+        raise ValueError(f"smoothing {est.label!r} by two filters: {not_reversible}")
+    if method == "rts" or not_reversible is not None:
+        return _smooth_compiled(est, flight, initial, name)
+    return _smooth_two_filter(est, flight, initial, name)
+
+
+#: The largest attitude difference, rad, between the two passes that the two-filter
+#: smoother fuses when each pass started on its own (30 deg: where the error state's
+#: small-angle model, sin x ~ x, is off by 5 %); beyond it the forward pass's estimate stands.
+FUSE_LIMIT = math.radians(30.0)
+#: The smoothing methods :func:`smooth` takes.
+METHODS = ("auto", "two-filter", "rts")
+
+
+def reversible(est: Any, flight: Flight) -> str | None:
+    """None when every aid source ``est`` fuses on ``flight`` has a time-reversed model
+    (gravity, magnetometer, GNSS velocity, rest), else why not: air data (a pitot reads the
+    flow from the nose; reversed, the vehicle would fly tail first) and multirotor drag
+    (dissipative: reversed, the drag would push)."""
+    from windahrs.core.kernel import layout_for
+
+    L = layout_for(est.kind, est.params, additive=est.additive)
+    air = L.has("wind") or est.params.accel_compensation == "airspeed"
+    if air and "air" in est.uses and flight.air is not None:
+        return "the flight's air data has no time-reversed model (a pitot reads the flow from the nose)"
+    if est.params.drag:
+        return "the multirotor drag has no time-reversed model (it is dissipative)"
+    return None
+
+
+def reversed_flight(flight: Flight) -> Flight:
+    """``flight`` run backwards in time, as the two-filter smoother's second pass sees it:
+    time t -> t_0 + t_end - t, every stream's rows reversed; the angular rate negated and
+    moved one row (w_b[k] is the mean over (t[k-1], t[k]], so the reversed row j, ending at
+    the original t[k], takes the original interval that starts there, -w_b[k+1]); the GNSS
+    velocity negated; the specific force and the magnetic field unchanged. No air data,
+    truth, reference or repairs (the smoother's backward pass uses none of them)."""
+    from windahrs.flight import GnssStream, ImuStream, MagStream
+
+    t0, t1 = float(flight.imu.t[0]), float(flight.imu.t[-1])
+    w = -flight.imu.w_b[::-1]
+    imu = ImuStream(t0 + t1 - flight.imu.t[::-1], np.vstack([w[:1], w[:-1]]), flight.imu.f_b[::-1].copy())
+    mag = gnss = None
+    if flight.mag is not None:
+        mag = MagStream(t0 + t1 - flight.mag.t[::-1], flight.mag.mag_b[::-1].copy())
+    if flight.gnss is not None:
+        gnss = GnssStream(t0 + t1 - flight.gnss.t[::-1], -flight.gnss.v_n[::-1])
+    return dataclasses.replace(
+        flight, imu=imu, mag=mag, gnss=gnss, air=None, truth=None, reference=None, ref_wind=None,
+        repairs={}, repair_times={},
+    )  # fmt: skip
+
+
+def _continued(run: Any, fw: SmoothRecord) -> InitialState | None:
+    """Where the backward pass starts: the forward pass's last posterior, turned to run
+    backwards (rates and velocities negated), with the filter's initial spreads, so that both
+    passes linearise about the same attitude and heading datum; None (the filter's own start)
+    when the forward pass never started."""
+    from windahrs.filters.base import InitialState
+
+    last = np.flatnonzero(fw.aux[:, A_INIT] == 1.0)
+    if len(last) == 0:
+        return None
+    x = fw.nom[last[-1]]
+    has_v, has_w = run.v.shape[0] > 0, run.w.shape[0] > 0
+    return InitialState(
+        q_nb=x[N_Q : N_Q + 4].copy(),
+        gyro_bias_b=-x[N_BG : N_BG + 3],
+        v_n=-x[N_V : N_V + 3] if has_v else None,
+        wind_n=-x[N_W : N_W + 3] if has_w else None,
+    )
+
+
+def _lost(t: F64, resets: dict[str, F64]) -> NDArray[np.bool_]:
+    """(N,) whether IMU time t (s, in the pass's own time, any order) lies in the span a
+    reset of the pass says it was lost: from when the sensor began to disagree to the reset."""
+    lost = np.zeros(len(t), dtype=np.bool_)
+    for rows in resets.values():
+        for t_reset, _, out in rows:
+            lost |= (t >= t_reset - out) & (t < t_reset)
+    return lost
+
+
+def _heading_observed(est: Any, flight: Flight) -> bool:
+    """Whether an aid source measures the heading: a magnetometer, or GNSS velocity into a
+    velocity state."""
+    from windahrs.core.kernel import layout_for
+
+    gnss = layout_for(est.kind, est.params).has("v") and "gnss" in est.uses and flight.gnss is not None
+    return gnss or ("mag" in est.uses and flight.mag is not None)
+
+
+def _smooth_two_filter(est: Any, flight: Flight, initial: InitialState | None, name: str) -> Estimate:
+    """The two-filter smoother (Fraser and Potter 1969): the filter run forward and on
+    :func:`reversed_flight`, the two posteriors at each IMU sample fused by their
+    covariances (module docstring)."""
+    from windahrs.core.kernel import _resets, layout_for
+
+    N = len(flight.imu.t)
+    dim = layout_for(est.kind, est.params, additive=est.additive).dim
+    if 2 * smooth_bytes(N, dim) > SMOOTH_BUDGET:  # two records; the RTS pass needs one
+        return _smooth_compiled(est, flight, initial, name)
+
+    run, fw = forward_record(est, flight, initial)
+    # with a magnetometer the backward pass starts as the forward did, from its own first
+    # samples; without, nothing would give it a heading, so it starts where the forward ended
+    mag = "mag" in est.uses and flight.mag is not None
+    run_b, bw = forward_record(est, reversed_flight(flight), None if mag else _continued(run, fw))
+    L = run.layout
+    t = flight.imu.t
+    # a pass is not used where a reset of its own says it was lost: over the time its sensor
+    # had disagreed before the reset (for the backward pass, after it in the flight's time)
+    lost_f = _lost(t, _resets(run.st))
+    lost_b = _lost((t[0] + t[-1]) - t, _resets(run_b.st))
+    ok_b = (bw.aux[::-1, A_INIT] == 1.0) & ~lost_b
+    ok_f = (fw.aux[:, A_INIT] == 1.0) & ~(lost_f & ok_b)
+    nom_b, P_b = bw.nom[::-1], bw.P[::-1]
+    # the backward pass's nominal state and covariance in the forward's terms: rates and
+    # velocities change sign, and a heading datum of its own is turned onto the forward's
+    q_b = nom_b[:, N_Q : N_Q + 4]
+    both = ok_f & ok_b
+    if mag and flight.site.mag_n is None and both.sum() > 1:
+        # each pass took its heading datum from its own first magnetometer samples, and its
+        # heading drifts with its own vertical gyro bias error: the heading between them,
+        # fitted as an offset plus a drift, is turned out of the backward pass
+        e = quat_mul(q_b[both], quat_conj(fw.nom[both, N_Q : N_Q + 4]))
+        psi = 2.0 * np.arctan2(e[:, 3], e[:, 0])
+        off = float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi))))
+        tm = float(np.mean(t[both]))
+        drift, off2 = np.polyfit(t[both] - tm, np.angle(np.exp(1j * (psi - off))), 1)
+        turn = off + off2 + drift * (t - tm)
+        rz = np.zeros((N, 4))
+        rz[:, 0], rz[:, 3] = np.cos(turn / 2), -np.sin(turn / 2)
+        q_b = quat_mul(rz, q_b)
+    T = np.zeros((dim, dim))
+    x_b = np.zeros((N, dim))
+    cols = {"bg": N_BG, "v": N_V, "wind": N_W, "ba": N_BA, "bm": N_BM}
+    for block in L.blocks:
+        sl = L.sl(block)
+        if block == "att":
+            T[sl, sl] = np.eye(3)
+            continue
+        A = -np.eye(3) if block in ("bg", "v", "wind") else np.eye(3)
+        T[sl, sl] = A
+        x_b[:, sl] = nom_b[:, cols[block] : cols[block] + 3] @ A.T
+    P_b = T @ P_b @ T.T
+    # fused where both passes have started; the one that has elsewhere
+    nom, P = fw.nom, fw.P
+    d = np.zeros((N, dim))
+    d[:, :3] = quat_log(quat_mul(quat_conj(nom[:, N_Q : N_Q + 4]), q_b))
+    for block in L.blocks[1:]:
+        sl = L.sl(block)
+        d[:, sl] = x_b[:, sl] - nom[:, cols[block] : cols[block] + 3]
+    # passes that started apart (with a magnetometer) and differ beyond FUSE_LIMIT are no
+    # small error of one another: the forward pass stands, unless its own attitude spread is
+    # beyond the limit too
+    apart = both & (np.linalg.norm(d[:, :3], axis=1) > FUSE_LIMIT) & mag
+    unsure_f = np.trace(P[:, :3, :3], axis1=1, axis2=2) > FUSE_LIMIT**2
+    both &= ~apart
+    ok_b &= ~(apart & ~unsure_f)
+    ok_f &= ~(apart & unsure_f)
+    S = P[both] + P_b[both]
+    dead = np.diagonal(S, axis1=1, axis2=2) <= 0.0  # a state held in both (the vertical wind)
+    S[:, np.arange(dim), np.arange(dim)] += dead
+    K = np.linalg.solve(S, P[both]).transpose(0, 2, 1)  # P_f S^-1 (both symmetric)
+    dx = np.einsum("kij,kj->ki", K, d[both])
+    Ps = P[both] - K @ P[both]
+    P[both] = 0.5 * (Ps + Ps.transpose(0, 2, 1))
+    q = nom[:, N_Q : N_Q + 4]
+    q[both] = quat_mul(q[both], quat_exp(dx[:, :3]))
+    only_b = ok_b & ~ok_f
+    q[only_b] = q_b[only_b]
+    P[only_b] = P_b[only_b]
+    for block in L.blocks[1:]:
+        sl = L.sl(block)
+        x = nom[:, cols[block] : cols[block] + 3]
+        x[both] += dx[:, sl]
+        x[only_b] = x_b[only_b, sl]
+    if not _heading_observed(est, flight):
+        # nothing measures the heading: the passes' headings are two gyro integrations from
+        # datums of their own, so the smoothed attitude keeps the forward pass's heading
+        e = quat_mul(nom[both, N_Q : N_Q + 4], quat_conj(run.q[both]))  # smoothed against forward
+        twist = np.zeros((int(both.sum()), 4))
+        twist[:, 0], twist[:, 3] = e[:, 0], e[:, 3]
+        q[both] = quat_mul(quat_conj(twist / np.linalg.norm(twist, axis=1)[:, None]), q[both])
+    ok = ok_f | ok_b
+    run.q[ok] = q[ok] / np.linalg.norm(q[ok], axis=1)[:, None]
+    run.bg[ok] = nom[ok, N_BG : N_BG + 3]
+    if run.v.shape[0]:
+        run.v[ok] = nom[ok, N_V : N_V + 3]
+    if run.w.shape[0]:
+        run.w[ok] = nom[ok, N_W : N_W + 3]
+    P[~ok] = np.nan
+    run.st.cfg[C_COV_EVERY] = 1
+    out: Estimate = est.finish(run._replace(cov=P))
+    return dataclasses.replace(out, filter=name, meta={**out.meta, "smoother": "two-filter"})
 
 
 def _smooth_compiled(est: Any, flight: Flight, initial: InitialState | None, name: str) -> Estimate:
@@ -431,7 +681,7 @@ def _smooth_compiled(est: Any, flight: Flight, initial: InitialState | None, nam
     sm.P[~ok] = np.nan
     st.cfg[C_COV_EVERY] = 1
     out: Estimate = est.finish(run._replace(cov=sm.P))
-    return dataclasses.replace(out, filter=name)
+    return dataclasses.replace(out, filter=name, meta={**out.meta, "smoother": "rts"})
 
 
 def forward_record(est: Any, flight: Flight, initial: InitialState | None = None) -> tuple[Any, SmoothRecord]:
