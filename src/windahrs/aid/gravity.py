@@ -5,7 +5,7 @@ Preprocessing: compensation of the vehicle's acceleration by GNSS velocity diffe
 (``C_bn a_gnss``) or by ``(w - b_g) x V_air`` from pitot and vanes (SPEC 3.2.2); optionally
 a first-order low-pass of the compensated specific force in an almost inertial frame (the
 running mean is rotated into each new body frame by the gyro increment, VQF's tau_acc), the
-mean then being the measurement. With accel_lowpass_bias the mean's measurement model also
+mean then being the measurement. With lowpass_bias the mean's measurement model also
 carries the gyro bias: its samples were turned into the current body frame with the
 bias-corrected gyro, so a bias error db turned each by db integrated over its age, and the
 mean reads ``y + [y]x (dtheta + J db)`` with ``J`` (3x3, ``tau I`` at rest) rotated and
@@ -13,7 +13,7 @@ aged with the mean by the kernel (``x[X_JLAG]``). Gate: ``| |f| - g | < accel_no
 sample logs NaN), then each innovation component within ``gate_accel`` sigmas.
 Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_noise_online,
 accel_noise_mean_start, accel_norm_gate, accel_compensation, accel_lowpass,
-accel_lowpass_bias, gate_accel.
+lowpass_bias, gate_accel.
 """
 
 from __future__ import annotations
@@ -29,6 +29,8 @@ from windahrs.core.kalman import (
     _log,
     _lowpass_gain,
     _vector_rows,
+    lag_age,
+    lag_bias_rows,
 )
 from windahrs.core.layout import (
     _JIT,
@@ -41,16 +43,15 @@ from windahrs.core.layout import (
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
-    R_ACC_LAGB,
     R_ACC_LP,
     R_ACC_VAR,
     R_GATE2_ACC,
     R_GRAV,
+    R_LAGB,
     R_NORM_GATE,
     S_AGNSS,
     S_FBAR,
     S_VAIR,
-    W_H,
     W_NU,
     X_AGNSS,
     X_AVAR,
@@ -82,6 +83,9 @@ from windahrs.core.reset import (
 #: the gravity innovation has no gradient).
 LOST_COS = math.cos(math.radians(45.0))
 
+#: ... and the low-passed means' gyro-bias columns (the Kalman filters that model them: not
+#: [usque], whose unscented update has no such columns).
+LAG_PARAMS = ("lowpass_bias",)
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = (
     "accel_sigma",
@@ -90,7 +94,6 @@ PARAMS = (
     "accel_norm_gate",
     "accel_compensation",
     "accel_lowpass",
-    "accel_lowpass_bias",
     "gate_accel",
     "reset_timeout",
 )
@@ -100,14 +103,13 @@ PARAMS = (
 def blend_mean(prm, x, a, fx, fy, fz):
     """The low-passed specific force x[X_FBAR] (already carried into this body frame by
     kernel._rotate_lowpass) after the sample f with gain a; returns the new mean. With
-    accel_lowpass_bias its bias sensitivity J ages with it: the new sample carries no
+    lowpass_bias its bias sensitivity J ages with it: the new sample carries no
     rotation error yet."""
     x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
     x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
     x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
-    if prm[R_ACC_LAGB] > 0:
-        for i in range(9):
-            x[X_JLAG + i] *= 1.0 - a
+    if prm[R_LAGB] > 0:
+        lag_age(x, np.int64(X_JLAG), a)
     return x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
 
 
@@ -177,19 +179,12 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
     ib = cfg[C_IBG]
-    if flags[S_FBAR] == 1 and prm[R_ACC_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+    if flags[S_FBAR] == 1 and prm[R_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
         # the mean's samples were rotated into this body frame by the bias-corrected gyro:
         # a bias error db turned each by its integral over the sample's age, so the mean
         # reads y + [y]x (dtheta + J db), J = d mean / d b_g kept by the kernel (tau I at
         # rest, and rotated with the body): H_b = [y]x J
-        H = work[W_H : W_H + 3]
-        for k in range(3):
-            r0, r1, r2 = H[k, 0], H[k, 1], H[k, 2]
-            for a in range(3):
-                H[k, ib + a] = r0 * x[X_JLAG + a] + r1 * x[X_JLAG + 3 + a] + r2 * x[X_JLAG + 6 + a]
-        for a in range(3):
-            sup[0][nsup + a] = ib + a
-        nsup = 6
+        nsup = lag_bias_rows(work, sup[0], x, np.int64(X_JLAG), ib, np.int64(3), nsup)
     iba = cfg[C_IBA]
     if iba >= 0:  # (no accelerometer fusion in the INS; kept for the general model)
         h0, h1, h2 = h0 + x[X_BA], h1 + x[X_BA + 1], h2 + x[X_BA + 2]

@@ -27,10 +27,15 @@ from windahrs.core.kalman import (
     _log,
     _lowpass_gain,
     _vector_rows,
+    lag_age,
+    lag_bias_rows,
 )
 from windahrs.core.layout import (
     _JIT,
+    ADD_COV,
+    C_ADD,
     C_HVERT,
+    C_IBG,
     C_IBM,
     C_KIND,
     C_MAG,
@@ -40,6 +45,7 @@ from windahrs.core.layout import (
     MAG_3D,
     MAG_OFF,
     R_GATE2_MAG,
+    R_LAGB,
     R_MAG_DGATE,
     R_MAG_LP,
     R_MAG_NGATE,
@@ -53,6 +59,7 @@ from windahrs.core.layout import (
     W_NU,
     W_R,
     X_BM,
+    X_JMAG,
     X_MAGN,
     X_MBAR,
     X_Q,
@@ -166,12 +173,15 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     if prm[R_MAG_LP] > 0:  # fuse the low-passed field
         if flags[S_MBAR] == 0:
             x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2] = mx, my, mz
+            lag_age(x, np.int64(X_JMAG), 1.0)
             flags[S_MBAR] = 1
         else:
             a = _lowpass_gain(t - x[X_TMBAR], prm[R_MAG_LP])
             x[X_MBAR] = x[X_MBAR] + a * (mx - x[X_MBAR])
             x[X_MBAR + 1] = x[X_MBAR + 1] + a * (my - x[X_MBAR + 1])
             x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])
+            if prm[R_LAGB] > 0:
+                lag_age(x, np.int64(X_JMAG), a)
         x[X_TMBAR] = t
         mx, my, mz = x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2]
     sensor = np.int64(INN_MAG)
@@ -189,7 +199,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         y1 = c[1] * rx + c[4] * ry + c[7] * rz
         y2 = c[2] * rx + c[5] * ry + c[8] * rz
         _vector_rows(work, sup[0], y0, y1, y2, prm[R_MAG_VAR])
-        nsup = 3
+        nsup = _mean_bias_rows(cfg, prm, x, flags, work, sup[0], np.int64(3), np.int64(3))
         h0, h1, h2 = y0, y1, y2
         ibm = cfg[C_IBM]
         if ibm >= 0:  # + bm, H_bm = I
@@ -222,6 +232,17 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     work[W_R, 0] = sigma**2
     m, ns = np.int64(1), np.int64(3)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+
+
+@njit(inline="always", **_JIT)
+def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
+    """With lowpass_bias, the low-passed field's gyro-bias columns (H_b = H_att J, J its
+    bias sensitivity x[X_JMAG], :func:`windahrs.core.kalman.lag_bias_rows`) on the m rows
+    just written; returns the support size."""
+    ib = cfg[C_IBG]
+    if flags[S_MBAR] == 1 and prm[R_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+        return lag_bias_rows(work, sup, x, np.int64(X_JMAG), ib, m, nsup)
+    return nsup
 
 
 @njit(inline="always", **_JIT)

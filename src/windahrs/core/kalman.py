@@ -49,6 +49,8 @@ from windahrs.core.layout import (
     L_CNT,
     L_FIRST,
     N_SENSORS,
+    S_FBAR,
+    S_MBAR,
     S_SEQ,
     SENSOR_ROWS,
     SENSORS,
@@ -65,6 +67,10 @@ from windahrs.core.layout import (
     X_BA,
     X_BG,
     X_BM,
+    X_FBAR,
+    X_JLAG,
+    X_JMAG,
+    X_MBAR,
     X_Q,
     X_V,
     X_W,
@@ -357,6 +363,10 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     if cfg[C_ADD] != ADD_NONE:
         if ib >= 0:
+            if flags[S_FBAR] == 1:
+                _rebias_mean(x, X_FBAR, X_JLAG, dx[ib + 1], dx[ib + 2], dx[ib + 3])
+            if flags[S_MBAR] == 1:
+                _rebias_mean(x, X_MBAR, X_JMAG, dx[ib + 1], dx[ib + 2], dx[ib + 3])
             for a in range(3):
                 x[X_BG + a] += dx[ib + 1 + a]
         if iw >= 0:
@@ -369,6 +379,10 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
         e = _qexp(dx[0], dx[1], dx[2])
         q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
         x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+        if flags[S_FBAR] == 1:
+            _rebias_mean(x, X_FBAR, X_JLAG, dx[ib], dx[ib + 1], dx[ib + 2])
+        if flags[S_MBAR] == 1:
+            _rebias_mean(x, X_MBAR, X_JMAG, dx[ib], dx[ib + 1], dx[ib + 2])
         for a in range(3):
             x[X_BG + a] += dx[ib + a]
             if iv >= 0:
@@ -380,6 +394,46 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             if cfg[C_IBM] >= 0:
                 x[X_BM + a] += dx[cfg[C_IBM] + a]
     return True
+
+
+@njit(inline="always", **_JIT)
+def _rebias_mean(x, im, ij, d0, d1, d2):
+    """A low-passed vector x[im:im+3] (the gravity or magnetometer aid's mean) after a gyro-bias
+    correction d: its samples were carried into the body frame by the rate less the old bias,
+    which turned each by d times its age, so the mean moves by -mean x (J d), J =
+    x[ij:ij+9] = d mean / d b_g (row-major), as if carried by the new bias all along. Without
+    lowpass_bias J stays zero: no change."""
+    v0 = x[ij] * d0 + x[ij + 1] * d1 + x[ij + 2] * d2
+    v1 = x[ij + 3] * d0 + x[ij + 4] * d1 + x[ij + 5] * d2
+    v2 = x[ij + 6] * d0 + x[ij + 7] * d1 + x[ij + 8] * d2
+    m0, m1, m2 = x[im], x[im + 1], x[im + 2]
+    x[im] = m0 - (m1 * v2 - m2 * v1)
+    x[im + 1] = m1 - (m2 * v0 - m0 * v2)
+    x[im + 2] = m2 - (m0 * v1 - m1 * v0)
+
+
+@njit(inline="always", **_JIT)
+def lag_age(x, ij, a):
+    """A low-passed vector's bias sensitivity J = x[ij:ij+9] after it took a fresh sample
+    with gain a: the new sample carries no rotation error yet, so J shrinks by 1 - a."""
+    for i in range(9):
+        x[ij + i] *= 1.0 - a
+
+
+@njit(inline="always", **_JIT)
+def lag_bias_rows(work, sup, x, ij, ib, m, nsup):
+    """The gyro-bias columns of a measurement made of a low-passed vector whose rotation
+    error is J db (J = x[ij:ij+9], row-major): it enters as an attitude error does, so
+    H_b = H_att J on the bias columns ib..ib+2 of its m rows, appended to the support sup
+    (row) after nsup columns. Returns the new support size."""
+    H = work[W_H : W_H + 3]
+    for k in range(m):
+        r0, r1, r2 = H[k, 0], H[k, 1], H[k, 2]
+        for a in range(3):
+            H[k, ib + a] = r0 * x[ij + a] + r1 * x[ij + 3 + a] + r2 * x[ij + 6 + a]
+    for a in range(3):
+        sup[nsup + a] = ib + a
+    return nsup + 3
 
 
 @njit(inline="always", **_JIT)

@@ -114,7 +114,6 @@ from windahrs.core.layout import (
     N_WORK,
     N_X,
     NMAX,
-    R_ACC_LAGB,
     R_ACC_LP,
     R_ACC_RANGE,
     R_ACC_VAR,
@@ -143,6 +142,7 @@ from windahrs.core.layout import (
     R_INI_V,
     R_INI_W,
     R_INI_WIN,
+    R_LAGB,
     R_MAG_DGATE,
     R_MAG_LP,
     R_MAG_NGATE,
@@ -202,6 +202,7 @@ from windahrs.core.layout import (
     X_FV,
     X_FWIN,
     X_JLAG,
+    X_JMAG,
     X_MBAR,
     X_NWIN,
     X_Q,
@@ -346,19 +347,28 @@ def _window_add(x, flags, t, row):
 
 
 @njit(**_JIT)
-def _rotate_lowpass(prm, x, flags, wx, wy, wz, dt):
+def _rotate_lowpass(cfg, prm, x, flags, wx, wy, wz, dt):
     """The low-passed vectors into the new body frame,
-    v <- C(Exp(w dt))^T v (w bias-corrected); with the gravity aid's low-pass, its bias
-    sensitivity too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`)."""
+    v <- C(Exp(w dt))^T v (w bias-corrected); with lowpass_bias, their bias sensitivities
+    too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`, :mod:`windahrs.aid.mag`)."""
     c = _turn(wx, wy, wz, dt)
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
-        if prm[R_ACC_LAGB] > 0:
-            for j in range(3):  # each column of J, rotated like the mean
-                _rotate_cols(c, x, np.int64(X_JLAG + j))
-                x[X_JLAG + 4 * j] += dt
+        if prm[R_LAGB] > 0:
+            _age_rotated(c, x, np.int64(X_JLAG), dt)
     if flags[S_MBAR] == 1:
         _rotate_into(c, x, np.int64(X_MBAR))
+        if prm[R_LAGB] > 0 and cfg[C_MAG] == MAG_3D:
+            _age_rotated(c, x, np.int64(X_JMAG), dt)
+
+
+@njit(inline="always", **_JIT)
+def _age_rotated(c, x, ij, dt):
+    """A mean's bias sensitivity J = x[ij:ij+9] (row-major) over one step: its columns
+    rotated like the mean, and every sample dt older, J <- C^T J + dt I."""
+    for j in range(3):
+        _rotate_cols(c, x, ij + j)
+        x[ij + 4 * j] += dt
 
 
 @njit(inline="always", **_JIT)
@@ -435,7 +445,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
         if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
-            _rotate_lowpass(prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+            _rotate_lowpass(cfg, prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
         if cfg[C_ADD] == 1:
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
@@ -822,7 +832,7 @@ def make_state(
     prm[R_REST_MIN_T] = p.rest_min_time
     prm[R_REST_VAR] = p.rest_bias_sigma**2
     prm[R_REST_CLIP] = p.rest_bias_clip
-    prm[R_ACC_LAGB] = 1.0 if p.accel_lowpass_bias else 0.0
+    prm[R_LAGB] = 1.0 if p.lowpass_bias else 0.0
     prm[R_GRAV] = site.gravity_n[2]
     if site.mag_n is not None:
         prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n

@@ -184,7 +184,7 @@ R_REST_TAU = 67  # rest_tau, s
 R_REST_MIN_T = 68  # rest_min_time, s
 R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
 R_REST_CLIP = 70  # rest_bias_clip, rad/s
-R_ACC_LAGB = 71  # accel_lowpass_bias: 1 the low-passed gravity measurement carries its gyro-bias columns
+R_LAGB = 71  # lowpass_bias: 1 the low-passed gravity and magnetometer measurements carry their gyro-bias columns
 R_P0_YAW = 72  # init_yaw^2, rad^2 (0: init_att's)
 N_PRM = 73
 
@@ -232,7 +232,8 @@ X_TRFUSE = X_AVAR + 32  # when the rest measurement was last fused, s
 X_JLAG = X_AVAR + 33  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
 X_NGAIN = X_AVAR + 42  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
-N_X = X_AVAR + 44
+X_JMAG = X_AVAR + 44  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
+N_X = X_AVAR + 53
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

@@ -46,8 +46,9 @@ class Ekf7(CompiledEstimator):
     default_params = EskfParams(accel_lowpass=3.0, accel_noise_online=True)
     #: no rate-proportional gyro noise and no hard-iron states in the additive form
     parts: ClassVar[tuple[tuple[str, ...], ...]] = (
-        process.ATTITUDE_PARAMS, process.HELD_SAMPLE_PARAMS, imu_screen.PARAMS, rest.PARAMS, gravity.PARAMS, mag.PARAMS
-    )
+        process.ATTITUDE_PARAMS, process.HELD_SAMPLE_PARAMS, imu_screen.PARAMS, rest.PARAMS, gravity.PARAMS,
+        gravity.LAG_PARAMS, mag.PARAMS,
+    )  # fmt: skip
 
 
 class Ekf10(Ekf7):

@@ -45,7 +45,8 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS, airspeed_sca
 #: motion): gravity and field as means in an almost inertial frame (3 s, 9 s, VQF's time
 #: constants), the accelerometer's noise (vibration) estimated on line,
 #: rate-proportional gyro noise, heading-only magnetometer about the vertical
-#: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg).
+#: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg), and the
+#: means' gyro-bias columns (lowpass_bias).
 MEKF_FIELD = EskfParams(
     accel_lowpass=3.0,
     accel_noise_online=True,
@@ -55,6 +56,7 @@ MEKF_FIELD = EskfParams(
     mag_lowpass=9.0,
     mag_norm_gate=0.1,
     mag_dip_gate=float(np.radians(10.0)),
+    lowpass_bias=True,
 )
 
 
@@ -74,6 +76,7 @@ class Mekf(CompiledEstimator):
         rest.PARAMS,
         process.GYRO_SCALE_PARAMS,
         gravity.PARAMS,
+        gravity.LAG_PARAMS,
         mag.PARAMS,
         mag.BIAS_PARAMS,
     )

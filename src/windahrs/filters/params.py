@@ -125,18 +125,19 @@ class EskfParams:
     body frame by the gyro increment), and that mean is the measurement, gated and fused
     at every IMU sample: linear accelerations of bounded velocity average out there while
     gravity does not (VQF's tau_acc; [mekf] default 3 s, 0: raw samples).
-    accel_lowpass_bias (with accel_lowpass): the mean's measurement model includes the gyro
-    bias, ``H_b = [y]x J``: the mean's samples were rotated into the current body frame by
-    the bias-corrected gyro, so a bias error turned each by the bias times its age (J, tau I
-    at rest, kept rotated with the body; :mod:`windahrs.aid.gravity`). Without it a turning
-    vehicle's bias and tilt settle off (a noise-free 0.6 rad/s cone: tilt 0.045 -> 0.005
-    deg; VQF 0.057). Default False: measured on the ANSFL quadrotor flights tilt 4.69 ->
-    4.12 deg (even) and 6.40 -> 6.18 (odd), PX4 sample.ulg 0.214 -> 0.191, BROAD
-    inclination 0.552 -> 0.560 (median of 7), but the simulated quadrotor's manoeuvre
-    accelerations, which the mean keeps for seconds and its noise model takes as white,
-    then reach the bias (mean tilt 0.51 -> 2.31 deg over 4 seeds in 8 m/s wind, 10 deg at
-    10 s on two of them; noise-free sensors: 0.68 -> 1.17 deg at 10 s; docs/RESULTS.md
-    section 16).
+    lowpass_bias (with accel_lowpass, mag_lowpass): the means' measurement models include
+    the gyro bias, ``H_b = H_att J``: their samples were rotated into the current body frame
+    by the bias-corrected gyro, so a bias error turned each by the bias times its age (J,
+    tau I at rest, kept rotated with the body by the kernel; :mod:`windahrs.aid.gravity`),
+    and a bias correction turns the means to what the new bias would have made of them.
+    The magnetometer's mean carries them in 3-D fusion only (a known site field): on the
+    heading-only model (the field's site unknown, e.g. indoors) they took the field's
+    spatial changes into the vertical gyro bias (BROAD heading 0.775 -> 1.118 deg). Without
+    them a 1 deg/s gyro bias keeps the tilt about tau x bias off for tens of seconds.
+    Default True in [mekf] (docs/RESULTS.md section 18: the simulated quadrotor's tilt,
+    4 seeds x calm and 8 m/s, summed 5.01 -> 3.68 deg; PX4 sample.ulg 0.214 -> 0.149;
+    ANSFL 5.07 -> 4.54; BROAD 1.015 / 0.552 -> 1.003 / 0.560 total / inclination; the
+    simulated fixed wing's coordinated turns, which [mekf] takes for gravity, 4.9 -> 5.7).
     accel_noise_online (with accel_lowpass): add to accel_sigma^2 the accelerometer's noise
     variance estimated on line from the differences of consecutive samples, ``|f_k -
     f_k-1|^2 / 6`` per axis averaged over accel_lowpass: rotor vibration (several m/s^2 on a
@@ -292,7 +293,7 @@ class EskfParams:
     accel_norm_gate: float = 0.15
     accel_compensation: Literal["none", "gnss", "airspeed"] = "none"
     accel_lowpass: float = 0.0
-    accel_lowpass_bias: bool = False
+    lowpass_bias: bool = False
     gyro_scale_noise: float = 0.0
     mag_mode: Literal["3d", "heading", "off"] = "3d"
     mag_sigma: float = 1.5e-6
