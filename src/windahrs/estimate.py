@@ -254,7 +254,10 @@ class Estimate:
                     out.append(f"{self.filter}: {sensor} taken for the heading (absent at the start, or after "
                                f"a reset); at t = {t:.2f} s {what}")
                     continue
-                why = "rejected" if sensor == "gnss" else "more than 45 deg off the state"
+                why = {
+                    "gnss": "rejected",
+                    "accel": "off the state (by more than 45 deg, or 25 deg at gravity's length)",
+                }.get(sensor, "more than 45 deg off the state")
                 out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "

@@ -82,6 +82,14 @@ from windahrs.core.reset import (
 #: measurement for good, and an accepted one cannot turn a filter that is upside down, where
 #: the gravity innovation has no gradient).
 LOST_COS = math.cos(math.radians(45.0))
+#: ... and within it, the disagreement beyond which a mean force of gravity's length is no
+#: acceleration (the filter has lost gravity too): an acceleration across gravity that turns
+#: the specific force by d lengthens it to g / cos d, so a force within ACCEL_TURN_NORM (10 %)
+#: of g is turned by at most acos(1 / 1.1) = 24.6 deg (a coordinated turn's 30 deg bank reads
+#: 1.155 g). Without it a filter 25-45 deg off whose gate rejects every sample (the additive
+#: [ekf7], [usque] after a 90 deg start on the quadrotor in wind: 44 deg for good) never resets.
+ACCEL_TURN_NORM = 0.1
+ACCEL_TURN_COS = 1.0 / (1.0 + ACCEL_TURN_NORM)
 
 #: ... and the low-passed means' gyro-bias columns (the Kalman filters that model them: not
 #: [usque], whose unscented update has no such columns).
@@ -97,6 +105,14 @@ PARAMS = (
     "gate_accel",
     "reset_timeout",
 )
+
+
+@njit(inline="always", **_JIT)
+def knows_gravity(cos_d, fn, g):
+    """Whether a state still knows gravity, given the cosine cos_d between its down direction
+    and the measured one (-f / |f|) and the force's length fn m/s^2: within 45 deg
+    (LOST_COS), and, beyond ACCEL_TURN_COS, only with a length that an acceleration explains."""
+    return cos_d > LOST_COS and (cos_d > ACCEL_TURN_COS or abs(fn - g) > ACCEL_TURN_NORM * g)
 
 
 @njit(inline="always", **_JIT)
@@ -162,8 +178,11 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gx, gy, gz = (fx - k0, fy - k1, fz - k2) if has_k else (fx, fy, fz)
     # the state still knows gravity while the measured down direction is within 45 deg of
     # its C_bn e_3 = -y / g, accepted or not (a sustained acceleration is gated out, and
-    # the filter rightly coasts on the gyro through it)
-    if (gx * y0 + gy * y1 + gz * y2) > LOST_COS * g * math.sqrt(gx * gx + gy * gy + gz * gz):
+    # the filter rightly coasts on the gyro through it), unless the measured force has
+    # gravity's length while beyond ACCEL_TURN_COS of the state's down: no acceleration
+    # turns it that far without lengthening it
+    fn = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if knows_gravity((gx * y0 + gy * y1 + gz * y2) / (g * fn), fn, g):
         accepted_at(x, sensor, t)
     elif timed_out(prm, x, sensor, t):  # gravity far off the state for too long: level to it
         angle = level_to(x, -gx, -gy, -gz)

@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from windahrs.aid.gravity import LOST_COS, accel_variance, blend_mean
+from windahrs.aid.gravity import accel_variance, blend_mean, knows_gravity
 from windahrs.aid.mag import heading_reset, mag_reference, measured_heading
 from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
@@ -388,10 +388,10 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
         _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
         return
     # lost gravity, as the gravity aid source sees it (windahrs.aid.gravity, core.reset): the
-    # measured down direction -f more than 45 deg from the state's C_bn e_3 for reset_timeout
+    # measured down direction -f too far from the state's C_bn e_3 for reset_timeout
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     sensor = np.int64(INN_ACCEL)
-    if -(fx * c[6] + fy * c[7] + fz * c[8]) > LOST_COS * f_norm:
+    if knows_gravity(-(fx * c[6] + fy * c[7] + fz * c[8]) / f_norm, f_norm, g):
         accepted_at(x, sensor, t)
     elif timed_out(prm, x, sensor, t):
         angle = level_to(x, -fx, -fy, -fz)
