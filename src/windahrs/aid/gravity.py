@@ -31,7 +31,7 @@ from windahrs.core.kalman import (
     _vector_rows,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     ADD_COV,
     C_ADD,
     C_AVAR,
@@ -96,7 +96,7 @@ PARAMS = (
 )
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def blend_mean(prm, x, a, fx, fy, fz):
     """The low-passed specific force x[X_FBAR] (already carried into this body frame by
     kernel._rotate_lowpass) after the sample f with gain a; returns the new mean. With
@@ -111,14 +111,14 @@ def blend_mean(prm, x, a, fx, fy, fz):
     return x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def accel_variance(cfg, prm, x):
     """The gravity measurement's variance per axis: accel_sigma^2, plus the accelerometer's
     noise measured on line (core.predict.track_accel_noise) with accel_noise_online."""
     return prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     """The accelerometer of IMU sample ``row`` = [w_b, f_b] at t s, after the prediction
     over dt s: the specific force (compensated, optionally low-passed) as a measurement of
