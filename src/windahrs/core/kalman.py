@@ -185,45 +185,42 @@ def _lowpass_gain(dt, tau):
 
 
 @njit(**_JIT_CORE)
-def _inverse_small(w, i_s, i_si, m):
-    """S^-1 into the scratch rows w[i_si:i_si+m] for S in w[i_s:i_s+m], m = 1, 2 or 3
-    (cofactors; S is a well-conditioned innovation covariance)."""
+def _inverse_small(S, Si, m):
+    """Si = S^-1 for m = 1, 2 or 3 (cofactors; S is a well-conditioned innovation covariance)."""
     if m == 1:
-        w[i_si, 0] = 1.0 / w[i_s, 0]
+        Si[0, 0] = 1.0 / S[0, 0]
         return
     if m == 2:
-        r = 1.0 / (w[i_s, 0] * w[i_s + 1, 1] - w[i_s, 1] * w[i_s + 1, 0])
-        w[i_si, 0], w[i_si, 1] = w[i_s + 1, 1] * r, -w[i_s, 1] * r
-        w[i_si + 1, 0], w[i_si + 1, 1] = -w[i_s + 1, 0] * r, w[i_s, 0] * r
+        r = 1.0 / (S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0])
+        Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1] = S[1, 1] * r, -S[0, 1] * r, -S[1, 0] * r, S[0, 0] * r
         return
-    a, b, c = w[i_s, 0], w[i_s, 1], w[i_s, 2]
-    d, e, f = w[i_s + 1, 0], w[i_s + 1, 1], w[i_s + 1, 2]
-    g, h, i = w[i_s + 2, 0], w[i_s + 2, 1], w[i_s + 2, 2]
+    a, b, c = S[0, 0], S[0, 1], S[0, 2]
+    d, e, f = S[1, 0], S[1, 1], S[1, 2]
+    g, h, i = S[2, 0], S[2, 1], S[2, 2]
     A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
     r = 1.0 / (a * A + b * B + c * C)
-    w[i_si, 0], w[i_si, 1], w[i_si, 2] = A * r, (c * h - b * i) * r, (b * f - c * e) * r
-    w[i_si + 1, 0], w[i_si + 1, 1], w[i_si + 1, 2] = B * r, (a * i - c * g) * r, (c * d - a * f) * r
-    w[i_si + 2, 0], w[i_si + 2, 1], w[i_si + 2, 2] = C * r, (b * g - a * h) * r, (a * e - b * d) * r
+    Si[0, 0], Si[0, 1], Si[0, 2] = A * r, (c * h - b * i) * r, (b * f - c * e) * r
+    Si[1, 0], Si[1, 1], Si[1, 2] = B * r, (a * i - c * g) * r, (c * d - a * f) * r
+    Si[2, 0], Si[2, 1], Si[2, 2] = C * r, (b * g - a * h) * r, (a * e - b * d) * r
 
 
 @njit(inline="always", **_JIT_CORE)
-def _gate(cfg, flags, inn, acc, w, i_nu, i_s, i_si, sensor, t, m, gate2):
-    """S^-1 (into the scratch rows w[i_si:i_si+m], from S in w[i_s:i_s+m]), the NIS
-    ``nu^T S^-1 nu`` (nu: w[i_nu, :m]) and the gate (each component within gate sigmas,
+def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
+    """Si = S^-1, the NIS ``nu^T S^-1 nu`` and the gate (each component within gate sigmas,
     ``nu_k^2 <= gate^2 S_kk``: PX4 EKF2's test ratio), logged; returns whether accepted.
     Shared by the EKF update below and the unscented update of [usque]."""
-    _inverse_small(w, i_s, i_si, m)
+    _inverse_small(S, Si, m)
     nis = 0.0
     bad = 0
     for k in range(m):
         v = 0.0
         for l in range(m):
-            v += w[i_si + k, l] * w[i_nu, l]
-        nis += w[i_nu, k] * v
-        if not (w[i_nu, k] * w[i_nu, k] <= gate2 * w[i_s + k, k]):
+            v += Si[k, l] * nu[l]
+        nis += nu[k] * v
+        if not (nu[k] * nu[k] <= gate2 * S[k, k]):
             bad += 1
     accepted = bad == 0
-    _log(cfg, flags, inn, acc, w[i_nu], sensor, t, m, nis, accepted)
+    _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
     return accepted
 
 
@@ -241,176 +238,170 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     Returns whether the update was accepted.
 
     Loops run over whole padded rows of P (whole SIMD lanes) with every row of the
-    measurement in one pass, which lets the compiler vectorise them. The scratch rows are
-    indexed in ``work`` (W_U + k, ...), not taken as views: numba counts the references of
-    every view with two atomic operations, which cost more than this update's arithmetic."""
+    measurement in one pass, which lets the compiler vectorise them."""
     n = cfg[C_N]
-    hr, cr, nc = W_H, 0, nsup  # H's first scratch row and its columns' row of sups
+    H, sup = work[W_H : W_H + 3], sups[0]
+    Hm, cols, nc = H, sup, nsup
     if cfg[C_ADD] == ADD_ATT:
+        Hq = work[W_HQ : W_HQ + 3]
+        cols = sups[1]
         q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
         for k in range(m):  # 2 H_att Xi(q)^T
-            h0, h1, h2 = 2.0 * work[W_H + k, 0], 2.0 * work[W_H + k, 1], 2.0 * work[W_H + k, 2]
-            work[W_HQ + k, 0] = -h0 * q1 - h1 * q2 - h2 * q3
-            work[W_HQ + k, 1] = h0 * q0 - h1 * q3 + h2 * q2
-            work[W_HQ + k, 2] = h0 * q3 + h1 * q0 - h2 * q1
-            work[W_HQ + k, 3] = -h0 * q2 + h1 * q1 + h2 * q0
+            h0, h1, h2 = 2.0 * H[k, 0], 2.0 * H[k, 1], 2.0 * H[k, 2]
+            Hq[k, 0] = -h0 * q1 - h1 * q2 - h2 * q3
+            Hq[k, 1] = h0 * q0 - h1 * q3 + h2 * q2
+            Hq[k, 2] = h0 * q3 + h1 * q0 - h2 * q1
+            Hq[k, 3] = -h0 * q2 + h1 * q1 + h2 * q0
         for c in range(4):
-            sups[1, c] = c
+            cols[c] = c
         nc = 4
         for ci in range(nsup):
-            c = sups[0, ci]
+            c = sup[ci]
             if c >= 3:
-                sups[1, nc] = c + 1
+                cols[nc] = c + 1
                 nc += 1
                 for k in range(m):
-                    work[W_HQ + k, c + 1] = work[W_H + k, c]
-        hr, cr = W_HQ, 1
+                    Hq[k, c + 1] = H[k, c]
+        Hm = Hq
     elif cfg[C_ADD] == ADD_COV:
-        hr, cr = W_HQ, 1
+        Hm, cols = work[W_HQ : W_HQ + 3], sups[1]
+    U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
+    R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
+    nu, dx = work[W_NU], work[W_DX]
     # U = H P, whole padded rows (P is exactly symmetric, so U^T = P H^T exactly)
     for k in range(m):
         for j in range(P.shape[1]):
-            work[W_U + k, j] = 0.0
+            U[k, j] = 0.0
     for ci in range(nc):
-        c = sups[cr, ci]
+        c = cols[ci]
         if m == 3:
-            h0, h1, h2 = work[hr, c], work[hr + 1, c], work[hr + 2, c]
+            h0, h1, h2 = Hm[0, c], Hm[1, c], Hm[2, c]
             for j in range(P.shape[1]):
                 p = P[c, j]
-                work[W_U, j] += h0 * p
-                work[W_U + 1, j] += h1 * p
-                work[W_U + 2, j] += h2 * p
+                U[0, j] += h0 * p
+                U[1, j] += h1 * p
+                U[2, j] += h2 * p
         elif m == 2:
-            h0, h1 = work[hr, c], work[hr + 1, c]
+            h0, h1 = Hm[0, c], Hm[1, c]
             for j in range(P.shape[1]):
                 p = P[c, j]
-                work[W_U, j] += h0 * p
-                work[W_U + 1, j] += h1 * p
+                U[0, j] += h0 * p
+                U[1, j] += h1 * p
         else:
-            h0 = work[hr, c]
+            h0 = Hm[0, c]
             for j in range(P.shape[1]):
-                work[W_U, j] += h0 * P[c, j]
+                U[0, j] += h0 * P[c, j]
     for k in range(m):
         for l in range(m):
             s = 0.0
             for ci in range(nc):
-                c = sups[cr, ci]
-                s += work[hr + k, c] * work[W_U + l, c]
-            work[W_S + k, l] = s + work[W_R + k, l]
-    if not _gate(cfg, flags, inn, acc, work, W_NU, W_S, W_SI, sensor, t, m, gate2):
+                c = cols[ci]
+                s += Hm[k, c] * U[l, c]
+            S[k, l] = s + R[k, l]
+    if not _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
         return False
     # K^T = S^-1 H P; Joseph form expanded: P - K U^T - U K^T + K S K^T = P + K G^T + G K^T
     # with G = K S / 2 - U^T. Each entry adds K_ik G_jk + G_ik K_jk in the same order as
     # its mirror entry, so P stays exactly symmetric in floating point.
     if m == 3:
-        i00, i01, i02 = work[W_SI, 0], work[W_SI, 1], work[W_SI, 2]
-        i10, i11, i12 = work[W_SI + 1, 0], work[W_SI + 1, 1], work[W_SI + 1, 2]
-        i20, i21, i22 = work[W_SI + 2, 0], work[W_SI + 2, 1], work[W_SI + 2, 2]
-        s00, s01, s02 = work[W_S, 0], work[W_S, 1], work[W_S, 2]
-        s10, s11, s12 = work[W_S + 1, 0], work[W_S + 1, 1], work[W_S + 1, 2]
-        s20, s21, s22 = work[W_S + 2, 0], work[W_S + 2, 1], work[W_S + 2, 2]
-        n0, n1, n2 = work[W_NU, 0], work[W_NU, 1], work[W_NU, 2]
+        i00, i01, i02, i10, i11, i12 = Si[0, 0], Si[0, 1], Si[0, 2], Si[1, 0], Si[1, 1], Si[1, 2]
+        i20, i21, i22 = Si[2, 0], Si[2, 1], Si[2, 2]
+        s00, s01, s02, s10, s11, s12 = S[0, 0], S[0, 1], S[0, 2], S[1, 0], S[1, 1], S[1, 2]
+        s20, s21, s22 = S[2, 0], S[2, 1], S[2, 2]
+        n0, n1, n2 = nu[0], nu[1], nu[2]
         for j in range(P.shape[1]):
-            u0, u1, u2 = work[W_U, j], work[W_U + 1, j], work[W_U + 2, j]
+            u0, u1, u2 = U[0, j], U[1, j], U[2, j]
             k0 = i00 * u0 + i01 * u1 + i02 * u2
             k1 = i10 * u0 + i11 * u1 + i12 * u2
             k2 = i20 * u0 + i21 * u1 + i22 * u2
-            work[W_K, j], work[W_K + 1, j], work[W_K + 2, j] = k0, k1, k2
-            work[W_DX, j] = k0 * n0 + k1 * n1 + k2 * n2  # K nu
-            work[W_G, j] = 0.5 * (s00 * k0 + s10 * k1 + s20 * k2) - u0
-            work[W_G + 1, j] = 0.5 * (s01 * k0 + s11 * k1 + s21 * k2) - u1
-            work[W_G + 2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
+            Kt[0, j], Kt[1, j], Kt[2, j] = k0, k1, k2
+            dx[j] = k0 * n0 + k1 * n1 + k2 * n2  # K nu
+            Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1 + s20 * k2) - u0
+            Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1 + s21 * k2) - u1
+            Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
         if cfg[C_TILT] == 1 and sensor == INN_ACCEL:
-            _tilt_only(x, work)
+            _tilt_only(x, Kt, Gt, dx, S, U, nu)
         for i in range(n):
-            a0, b0, a1, b1 = work[W_K, i], work[W_G, i], work[W_K + 1, i], work[W_G + 1, i]
-            a2, b2 = work[W_K + 2, i], work[W_G + 2, i]
+            a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
             for j in range(P.shape[1]):
-                P[i, j] = (
-                    (P[i, j] + (a0 * work[W_G, j] + b0 * work[W_K, j]))
-                    + (a1 * work[W_G + 1, j] + b1 * work[W_K + 1, j])
-                ) + (a2 * work[W_G + 2, j] + b2 * work[W_K + 2, j])
+                P[i, j] = ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
+                    a2 * Gt[2, j] + b2 * Kt[2, j]
+                )
     elif m == 2:
-        i00, i01, i10, i11 = work[W_SI, 0], work[W_SI, 1], work[W_SI + 1, 0], work[W_SI + 1, 1]
-        s00, s01, s10, s11 = work[W_S, 0], work[W_S, 1], work[W_S + 1, 0], work[W_S + 1, 1]
-        n0, n1 = work[W_NU, 0], work[W_NU, 1]
+        i00, i01, i10, i11 = Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1]
+        s00, s01, s10, s11 = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
+        n0, n1 = nu[0], nu[1]
         for j in range(P.shape[1]):
-            u0, u1 = work[W_U, j], work[W_U + 1, j]
+            u0, u1 = U[0, j], U[1, j]
             k0 = i00 * u0 + i01 * u1
             k1 = i10 * u0 + i11 * u1
-            work[W_K, j], work[W_K + 1, j] = k0, k1
-            work[W_DX, j] = k0 * n0 + k1 * n1
-            work[W_G, j] = 0.5 * (s00 * k0 + s10 * k1) - u0
-            work[W_G + 1, j] = 0.5 * (s01 * k0 + s11 * k1) - u1
+            Kt[0, j], Kt[1, j] = k0, k1
+            dx[j] = k0 * n0 + k1 * n1
+            Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1) - u0
+            Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1) - u1
         for i in range(n):
-            a0, b0, a1, b1 = work[W_K, i], work[W_G, i], work[W_K + 1, i], work[W_G + 1, i]
+            a0, b0, a1, b1 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i]
             for j in range(P.shape[1]):
-                P[i, j] = (P[i, j] + (a0 * work[W_G, j] + b0 * work[W_K, j])) + (
-                    a1 * work[W_G + 1, j] + b1 * work[W_K + 1, j]
-                )
+                P[i, j] = (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
     else:
-        i00, s00, n0 = work[W_SI, 0], work[W_S, 0], work[W_NU, 0]
+        i00, s00, n0 = Si[0, 0], S[0, 0], nu[0]
         for j in range(P.shape[1]):
-            k0 = i00 * work[W_U, j]
-            work[W_K, j] = k0
-            work[W_DX, j] = k0 * n0
-            work[W_G, j] = 0.5 * (s00 * k0) - work[W_U, j]
+            k0 = i00 * U[0, j]
+            Kt[0, j] = k0
+            dx[j] = k0 * n0
+            Gt[0, j] = 0.5 * (s00 * k0) - U[0, j]
         for i in range(n):
-            a0, b0 = work[W_K, i], work[W_G, i]
+            a0, b0 = Kt[0, i], Gt[0, i]
             for j in range(P.shape[1]):
-                P[i, j] = P[i, j] + (a0 * work[W_G, j] + b0 * work[W_K, j])
+                P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     if cfg[C_ADD] != ADD_NONE:
         if ib >= 0:
             for a in range(3):
-                x[X_BG + a] += work[W_DX, ib + 1 + a]
+                x[X_BG + a] += dx[ib + 1 + a]
         if iw >= 0:
             for a in range(3):
-                x[X_W + a] += work[W_DX, iw + 1 + a]
+                x[X_W + a] += dx[iw + 1 + a]
         _normalise_add(
-            cfg, x, P, work,
-            x[X_Q] + work[W_DX, 0], x[X_Q + 1] + work[W_DX, 1], x[X_Q + 2] + work[W_DX, 2], x[X_Q + 3] + work[W_DX, 3],
-        )  # fmt: skip
+            cfg, x, P, work, x[X_Q] + dx[0], x[X_Q + 1] + dx[1], x[X_Q + 2] + dx[2], x[X_Q + 3] + dx[3]
+        )
     else:
-        e = _qexp(work[W_DX, 0], work[W_DX, 1], work[W_DX, 2])
+        e = _qexp(dx[0], dx[1], dx[2])
         q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
         x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
-        ibm = cfg[C_IBM]
         for a in range(3):
-            x[X_BG + a] += work[W_DX, ib + a]
+            x[X_BG + a] += dx[ib + a]
             if iv >= 0:
-                x[X_V + a] += work[W_DX, iv + a]
+                x[X_V + a] += dx[iv + a]
             if iw >= 0:
-                x[X_W + a] += work[W_DX, iw + a]
+                x[X_W + a] += dx[iw + a]
             if iba >= 0:
-                x[X_BA + a] += work[W_DX, iba + a]
-            if ibm >= 0:
-                x[X_BM + a] += work[W_DX, ibm + a]
+                x[X_BA + a] += dx[iba + a]
+            if cfg[C_IBM] >= 0:
+                x[X_BM + a] += dx[cfg[C_IBM] + a]
     return True
 
 
 @njit(inline="always", **_JIT_CORE)
-def _tilt_only(x, work):
+def _tilt_only(x, Kt, Gt, dx, S, U, nu):
     """The gravity update's gain without its part about the vertical (3 rows, error state,
     attitude columns 0..2): gravity says nothing of the heading, and without a heading aid
     the covariance's correlations through which the EKF would turn it are built of
     unmodelled accelerations and grow without bound (VQF corrects the inclination only,
     likewise). K_att <- (I - u u^T) K_att with u = C_bn e_3, the vertical in body axes; dx
-    and G = K S / 2 - U^T follow the gain (the Joseph form holds for any gain). K^T, G^T,
-    dx, S, U and nu in their scratch rows of ``work`` (:func:`_fuse`)."""
+    and G = K S / 2 - U^T follow the gain (the Joseph form holds for any gain)."""
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     u0, u1, u2 = c[6], c[7], c[8]
     for k in range(3):
-        s = work[W_K + k, 0] * u0 + work[W_K + k, 1] * u1 + work[W_K + k, 2] * u2
-        work[W_K + k, 0] -= s * u0
-        work[W_K + k, 1] -= s * u1
-        work[W_K + k, 2] -= s * u2
+        s = Kt[k, 0] * u0 + Kt[k, 1] * u1 + Kt[k, 2] * u2
+        Kt[k, 0] -= s * u0
+        Kt[k, 1] -= s * u1
+        Kt[k, 2] -= s * u2
     for j in range(3):
-        k0, k1, k2 = work[W_K, j], work[W_K + 1, j], work[W_K + 2, j]
-        work[W_DX, j] = k0 * work[W_NU, 0] + k1 * work[W_NU, 1] + k2 * work[W_NU, 2]
+        k0, k1, k2 = Kt[0, j], Kt[1, j], Kt[2, j]
+        dx[j] = k0 * nu[0] + k1 * nu[1] + k2 * nu[2]
         for r in range(3):
-            s = work[W_S, r] * k0 + work[W_S + 1, r] * k1 + work[W_S + 2, r] * k2
-            work[W_G + r, j] = 0.5 * s - work[W_U + r, j]
+            Gt[r, j] = 0.5 * (S[0, r] * k0 + S[1, r] * k1 + S[2, r] * k2) - U[r, j]
 
 
 @njit(**_JIT_CORE)

@@ -347,7 +347,7 @@ def _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, gate2, angle):
             for i in range(1, _NP):
                 s += _WI * S[i, r] * Y[i, k]
             Pxy[r, k] = s
-    if not _gate(cfg, flags, inn, acc, work, U_NU, U_PYY, U_SI, sensor, t, m, gate2):
+    if not _gate(cfg, flags, inn, acc, nu, Pyy, Si, sensor, t, m, gate2):
         return False
     unscented_gain(P, Pxy, Si, nu, K, dx, np.int64(_N), m)  # K, dx = K nu, P -= K Pyy K^T
     d = _dq_from_grp(dx[0], dx[1], dx[2])
