@@ -98,8 +98,15 @@ def quat_rotate(q_nb: ArrayLike, v_b: ArrayLike) -> F64:
     q, v = _arr(q_nb), _arr(v_b)
     w = q[..., :1]
     u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    t = 2.0 * _cross(u, v)
+    return v + w * t + _cross(u, t)
+
+
+def _cross(a: F64, b: F64) -> F64:
+    """``np.cross`` of 3-vectors (..., 3), the same products and differences, without its
+    generic axis handling (which made it most of the tilt check's rotation)."""
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def quat_rotate_inv(q_nb: ArrayLike, v_n: ArrayLike) -> F64:

@@ -18,7 +18,7 @@ from windahrs.core.kalman import (
     _fuse,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     INN_AIR,
     R_GATE2_AIR,
     R_TAS_VAR,
@@ -41,7 +41,7 @@ from windahrs.core.quat import (
 PARAMS = ("air_mode", "tas_sigma", "vane_sigma", "gate_air")
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def init_wind(x, flags, use_v, vanes):
     """W = V - C_nb V_air from the first air sample (vertical wind 0 without vanes)."""
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
@@ -53,7 +53,7 @@ def init_wind(x, flags, use_v, vanes):
     flags[S_WPEND] = 0
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra):
     """Fuse the air-relative velocity of the sample (X_VAIR; tas m/s, cos/sin of aoa and
     sideslip) at t s; extra: variance added per axis (m/s)^2."""

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     C_IV,
     C_IW,
     S_VAIR,
@@ -30,7 +30,7 @@ from windahrs.core.quat import (
 )
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _air_rows(cfg, x, work, sup, use_state_v, g0, g1, g2, row):
     """Returns y = C_bn (v - wind) (v: the velocity state or the
     last GNSS velocity) and writes row ``row`` of H as g^T J, J = d y / d(error) =
@@ -61,7 +61,7 @@ def _air_rows(cfg, x, work, sup, use_state_v, g0, g1, g2, row):
 
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def remember_air(x, flags, tas, aoa, beta):
     """The sample's air-relative velocity into X_VAIR: tas m/s, aoa and sideslip rad
     (NaN: no vanes, the air then taken as along the body x axis; an angle of attack alone:

@@ -45,7 +45,7 @@ from windahrs.core.kalman import (
     _log,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     INN_ASPD,
     R_ASC_BETA_VAR,
     R_ASC_KN2,
@@ -82,7 +82,7 @@ TAS_GATE = 4.0
 BETA_GATE = 1.0
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _update(x, H0, H1, H2, nu, r, gate):
     """One scalar update of the 3-state estimator; H = (H0, H1, H2). Returns
     (accepted, nis)."""
@@ -106,7 +106,7 @@ def _update(x, H0, H1, H2, nu, r, gate):
     return True, nis
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _init(prm, x, flags, c, vn, ve, tas, t):
     """Initialise from the sample's air velocity (X_VAIR, scale 1) at the attitude c (C_nb
     row-major) and the ground velocity vn, ve m/s."""
@@ -124,7 +124,7 @@ def _init(prm, x, flags, c, vn, ve, tas, t):
     flags[S_ASC] = 1
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, beta, syn, use_v):
     """The estimator at an air sample: tas m/s measured, beta rad the sideslip vane's (NaN:
     none; syn: fuse a zero sideslip then), at t s; X_VAIR holds the sample's air velocity

@@ -28,7 +28,7 @@ from windahrs.core.kalman import (
     _fuse,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     INN_AOA,
     R_GATE2_AIR,
     R_VANE_VAR,
@@ -40,7 +40,7 @@ from windahrs.core.layout import (
 PARAMS = ("air_mode", "vane_sigma", "gate_air")
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_aoa(cfg, prm, x, flags, P, work, sup, inn, acc, t, aoa, tas, use_v, extra):
     """Fuse the angle of attack aoa rad at t s (tas m/s scales the GNSS part of R; extra:
     the GNSS velocity's variance (m/s)^2 when it is an input)."""

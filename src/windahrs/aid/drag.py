@@ -28,7 +28,7 @@ from windahrs.core.kalman import (
     _fuse,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     C_IBA,
     INN_DRAG,
     R_DRAG_KX,
@@ -46,7 +46,7 @@ from windahrs.core.layout import (
 PARAMS = ("drag", "drag_mcoef", "drag_bcoef_x", "drag_bcoef_y", "drag_sigma", "gate_drag", "air_density")
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """Fuse the specific force of IMU sample ``row`` = [w_b, f_b] along body x and y at t s."""
     u0, u1, _, ns = _air_rows(cfg, x, work, sup[0], True, 0.0, 0.0, 0.0, np.int64(0))

@@ -45,7 +45,7 @@ from windahrs.core.kalman import (
     _lowpass_gain,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     C_IBA,
     C_IBM,
     C_IV,
@@ -102,7 +102,7 @@ PARAMS = ("gnss_sigma", "gnss_timing_sigma", "gate_gnss", "reset_timeout")
 LEVEL_TAU = 3.0
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def remember_gnss(prm, x, flags, t, row):
     """Every filter keeps the last GNSS velocity (row[:3] m/s NED at t s) and its
     difference quotient, the acceleration used to compensate the accelerometer (and its
@@ -126,7 +126,7 @@ def remember_gnss(prm, x, flags, t, row):
     flags[S_VGNSS] = 1
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A GNSS velocity sample (finite) of an initialised filter: row[:3] m/s NED at t s,
     fused where velocity is a state ([ins-wind])."""
@@ -149,7 +149,7 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             accepted_at(x, sensor, t)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def remember_specific_force(x, flags, fx, fy, fz, dt):
     """The INS's mean specific force over LEVEL_TAU in the current body frame, in the slot of
     the gravity aid source's mean (x[X_FBAR]: the INS fuses no gravity): blended with f
@@ -165,7 +165,7 @@ def remember_specific_force(x, flags, fx, fy, fz, dt):
     x[X_FBAR + 2] = x[X_FBAR + 2] + k * (fz - x[X_FBAR + 2])
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _level(prm, x):
     """Level the attitude so that the mean specific force matches the mean GNSS
     acceleration, ``f_b = C_bn (a_n - g_n)`` (both over LEVEL_TAU)."""
@@ -173,7 +173,7 @@ def _level(prm, x):
     level_to(x, -x[X_FBAR], -x[X_FBAR + 1], -x[X_FBAR + 2], -x[X_AINS], -x[X_AINS + 1], g - x[X_AINS + 2])
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     """GNSS velocity kept out by its gate for reset_timeout (module docstring): velocity to
     the sample row[:3] m/s NED at t s (spread gnss_sigma), the attitude's spread reopened (a

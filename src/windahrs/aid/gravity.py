@@ -33,7 +33,7 @@ from windahrs.core.kalman import (
     lag_bias_rows,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     ADD_COV,
     C_ADD,
     C_AVAR,
@@ -107,7 +107,7 @@ PARAMS = (
 )
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def knows_gravity(cos_d, fn, g):
     """Whether a state still knows gravity, given the cosine cos_d between its down direction
     and the measured one (-f / |f|) and the force's length fn m/s^2: within 45 deg
@@ -115,7 +115,7 @@ def knows_gravity(cos_d, fn, g):
     return cos_d > LOST_COS and (cos_d > ACCEL_TURN_COS or abs(fn - g) > ACCEL_TURN_NORM * g)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def blend_mean(prm, x, a, fx, fy, fz):
     """The low-passed specific force x[X_FBAR] (already carried into this body frame by
     kernel._rotate_lowpass) after the sample f with gain a; returns the new mean. With
@@ -129,14 +129,14 @@ def blend_mean(prm, x, a, fx, fy, fz):
     return x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def accel_variance(cfg, prm, x):
     """The gravity measurement's variance per axis: accel_sigma^2, plus the accelerometer's
     noise measured on line (core.predict.track_accel_noise) with accel_noise_online."""
     return prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     """The accelerometer of IMU sample ``row`` = [w_b, f_b] at t s, after the prediction
     over dt s: the specific force (compensated, optionally low-passed) as a measurement of

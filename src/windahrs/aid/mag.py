@@ -31,7 +31,7 @@ from windahrs.core.kalman import (
     lag_bias_rows,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     ADD_COV,
     C_ADD,
     C_HVERT,
@@ -97,7 +97,7 @@ LOST_HEADING = math.radians(45.0)
 BIAS_PARAMS = ("init_mag_bias", "mag_bias_noise")
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
     """The reference field m_n: the site's field, or the sample's with its horizontal part north."""
     if cfg[C_SITE_MAG] == 1:
@@ -115,7 +115,7 @@ def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
     """The disturbance checks: the field to be fused fails the norm or dip check."""
     if cfg[C_IBM] >= 0:
@@ -136,7 +136,7 @@ def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
 
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def mag_reference(cfg, prm, x, flags, mx, my, mz):
     """The nav-frame reference field (set from this sample on first use): (rx, ry, rz) T."""
     if flags[S_MAGN] == 0:
@@ -144,7 +144,7 @@ def mag_reference(cfg, prm, x, flags, mx, my, mz):
     return x[X_MAGN], x[X_MAGN + 1], x[X_MAGN + 2]
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def measured_heading(roll, pitch, mx, my, mz, rx, ry):
     """The heading (ZYX yaw, rad) that the field sample m (body) gives against the
     reference's horizontal direction, tilt-compensated with the estimate's roll and pitch."""
@@ -155,7 +155,7 @@ def measured_heading(roll, pitch, mx, my, mz, rx, ry):
     return math.atan2(ry, rx) - math.atan2(m1, m0)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite) of an initialised filter: row[:3] tesla, body, at t s."""
     mx, my, mz = row[0], row[1], row[2]
@@ -234,7 +234,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
     """With lowpass_bias, the low-passed field's gyro-bias columns (H_b = H_att J, J its
     bias sensitivity x[X_JMAG], :func:`windahrs.core.kalman.lag_bias_rows`) on the m rows
@@ -245,7 +245,7 @@ def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
     return nsup
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
     """The heading's reset clock at a field sample m (body) against the reference r: a
     heading within LOST_HEADING of the field's restarts it (accepted by the gate or not);
@@ -262,7 +262,7 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
     return False
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _heading_offset(cfg, x, mx, my, mz, rx, ry):
     """The rotation about the nav vertical, rad, that turns the field sample m (body; less
     the hard iron when estimated) onto the reference's heading."""
@@ -274,7 +274,7 @@ def _heading_offset(cfg, x, mx, my, mz, rx, ry):
     return _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d):
     """The field's heading d rad off the state's for reset_timeout: turn the attitude about
     the nav vertical by d, reopen the attitude's spread (PX4 EKF2 resets its yaw to the

@@ -32,7 +32,7 @@ from numba import njit
 
 from windahrs.core.kalman import _bias_rows, _fuse, _lowpass_gain
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     C_IBG,
     C_REST,
     INN_REST,
@@ -68,7 +68,7 @@ PARAMS = (
 )
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     """IMU sample ``row`` = [w_b, f_b] at t s, dt s after the last one: rest detection,
     and at rest (once per rest_tau) the low-passed angular rate fused as the gyro bias."""

@@ -19,7 +19,7 @@ from windahrs.core.kalman import (
     _fuse,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     INN_SIDESLIP,
     R_BETA_VAR,
     R_GATE2_AIR,
@@ -31,7 +31,7 @@ from windahrs.core.layout import (
 PARAMS = ("synthetic_sideslip", "sideslip_sigma")
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra):
     """Fuse a zero sideslip at t s (tas m/s scales the GNSS part of R; extra: the GNSS
     variance (m/s)^2 when it is an input)."""

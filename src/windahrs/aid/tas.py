@@ -18,7 +18,7 @@ from windahrs.core.kalman import (
     _fuse,
 )
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     INN_TAS,
     R_GATE2_AIR,
     R_TAS_VAR,
@@ -31,7 +31,7 @@ from windahrs.core.layout import (
 PARAMS = ("air_mode", "tas_sigma", "gate_air")
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra):
     """Fuse the airspeed tas m/s at t s; extra: variance added (m/s)^2."""
     nu, R = work[W_NU], work[W_R : W_R + 3]

@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit, prange
 
 from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
-from windahrs.core.layout import _JIT, I64, KernelState
+from windahrs.core.layout import _JIT, C_OFF, I64, L_CNT, N_SENSORS, KernelState
 from windahrs.estimate import Estimate
 from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
 from windahrs.flight import Flight
@@ -114,8 +114,16 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     w_off = _offsets([s.work.size for s in sts])
     work = np.concatenate([s.work.ravel() for s in sts])
     l_off = _offsets([len(s.inn) for s in sts])
-    inn = np.concatenate([s.inn for s in sts])
-    acc = np.concatenate([s.acc for s in sts])
+    # the logs: the rows logged so far (none in a fresh state) copied, the rest left
+    # unwritten (kalman._log writes a row before anything reads it): a log has room for
+    # every sample of its stream, megabytes per flight that a copy would touch for nothing
+    inn = np.empty((int(l_off[-1]), 5))
+    acc = np.zeros(int(l_off[-1]), dtype=np.bool_)
+    for i, s in enumerate(sts):
+        for k in range(N_SENSORS):
+            o, c = int(s.cfg[C_OFF + k]), int(s.flags[L_CNT + k])
+            inn[l_off[i] + o : l_off[i] + o + c] = s.inn[o : o + c]
+            acc[l_off[i] + o : l_off[i] + o + c] = s.acc[o : o + c]
     e_off = _offsets([len(r.t_ev) for r in runs])
     t_ev = np.concatenate([r.t_ev for r in runs])
     kinds = np.concatenate([r.kinds for r in runs])

@@ -7,13 +7,13 @@ import math
 
 from numba import njit
 
-from windahrs.core.layout import _JIT
+from windahrs.core.layout import _JIT_CORE
 from windahrs.filters.base import EVENT_AIR, EVENT_IMU
 
 __all__ = ["sample_ok"]
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def sample_ok(kind, row):
     """Whether an event's sample can be used: an IMU sample with 6 finite values, a
     magnetometer or GNSS sample with 3, an air sample with a finite airspeed (NaN vanes

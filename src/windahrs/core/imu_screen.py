@@ -46,7 +46,7 @@ from numba import njit
 
 from windahrs.core.kalman import _log
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     C_IV,
     C_OFF,
     INN_IMU,
@@ -101,7 +101,7 @@ CLIP_SAMPLES = 5
 GAP = 0.1
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _catch_up(cfg, x, flags, dt, w, f):
     """The held sample was motion: its step's excess over what was propagated added to the
     nominal state (w: its rotation; f: for the INS, its velocity increment rotated to NED),
@@ -124,7 +124,7 @@ def _catch_up(cfg, x, flags, dt, w, f):
             x[X_FLAST + a] += x[X_PEND + 3 + a]
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _clipped(cfg, x, flags, P, work, row, dt):
     """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) for
     :data:`CLIP_SAMPLES` samples are clipped: the true value is beyond it by as much as it
@@ -145,7 +145,7 @@ def _clipped(cfg, x, flags, P, work, row, dt):
         add_unmeasured_motion(cfg, x, P, work, dt)
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _change2(row, x, i_row, i_x):
     """|row[i_row:i_row+3] - x[i_x:i_x+3]|^2."""
     s = 0.0
@@ -155,13 +155,14 @@ def _change2(row, x, i_row, i_x):
     return s
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
-    """The IMU sample to propagate at t s in place of ``row`` = [w_b, f_b] (finite): ``row``
-    itself, or with the last propagated angular rate or specific force in place of a held
-    one (module docstring)."""
+    """Whether the IMU sample ``row`` = [w_b, f_b] (finite) at t s is held: True when the
+    sample to propagate in its place, with the last propagated angular rate or specific
+    force in place of a held one (module docstring), is in work[W_IMU]; False: propagate
+    ``row`` itself."""
     if flags[S_FLAST] == 0:
-        return row
+        return False
     k = prm[R_SPIKE_GATE]
     dt = t - x[X_TIMU]
     gw2 = max(FLOOR_W * FLOOR_W, k * k * x[X_SW2])
@@ -208,7 +209,7 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
         x[X_SF2] += g * (min(df2, gf2) - x[X_SF2])
     if not (hold_w or hold_f):
         flags[S_NHELD] = 0
-        return row
+        return False
     nu = work[W_NU]
     nu[0], nu[1], nu[2] = math.sqrt(dw2), math.sqrt(df2), 0.0
     reason = 1.0 if (beyond_w or beyond_f) else 2.0  # (in the NIS column; 3: set when caught up)
@@ -222,4 +223,4 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
         x[X_PEND + 3 + a] = 0.0 if beyond_f else row[3 + a] - held[3 + a]
     x[X_DTPEND] = dt
     flags[S_NHELD] = (1 if hold_w else 0) + (2 if hold_f else 0)
-    return held
+    return True

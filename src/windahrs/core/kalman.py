@@ -25,7 +25,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     ADD_ATT,
     ADD_COV,
     ADD_NONE,
@@ -87,7 +87,7 @@ from windahrs.core.quat import (
 from windahrs.estimate import Innovations
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted):
     """Streamer._log: t, nu[:m] (NaN-padded to 3), nis, accepted."""
     c = flags[L_CNT + sensor]
@@ -183,14 +183,14 @@ def read_airspeed_scale(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) 
     return np.column_stack([inn[o : o + c, :4], acc[o : o + c].astype(np.float64)])
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _lowpass_gain(dt, tau):
     """Weight of a new sample in a first-order low-pass after dt."""
     return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _inverse_small(S, Si, m):
     """Si = S^-1 for m = 1, 2 or 3 (cofactors; S is a well-conditioned innovation covariance)."""
     if m == 1:
@@ -210,7 +210,7 @@ def _inverse_small(S, Si, m):
     Si[2, 0], Si[2, 1], Si[2, 2] = C * r, (b * g - a * h) * r, (a * e - b * d) * r
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
     """Si = S^-1, the NIS ``nu^T S^-1 nu`` and the gate (each component within gate sigmas,
     ``nu_k^2 <= gate^2 S_kk``: PX4 EKF2's test ratio), logged; returns whether accepted.
@@ -230,7 +230,7 @@ def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
     return accepted
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     """The Kalman update of the error-state and additive EKFs: NIS, gate, log, Joseph update, injection.
 
@@ -396,7 +396,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     return True
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _rebias_mean(x, im, ij, d0, d1, d2):
     """A low-passed vector x[im:im+3] (the gravity or magnetometer aid's mean) after a gyro-bias
     correction d: its samples were carried into the body frame by the rate less the old bias,
@@ -412,7 +412,7 @@ def _rebias_mean(x, im, ij, d0, d1, d2):
     x[im + 2] = m2 - (m0 * v1 - m1 * v0)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def lag_age(x, ij, a):
     """A low-passed vector's bias sensitivity J = x[ij:ij+9] after it took a fresh sample
     with gain a: the new sample carries no rotation error yet, so J shrinks by 1 - a."""
@@ -420,7 +420,7 @@ def lag_age(x, ij, a):
         x[ij + i] *= 1.0 - a
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def lag_bias_rows(work, sup, x, ij, ib, m, nsup):
     """The gyro-bias columns of a measurement made of a low-passed vector whose rotation
     error is J db (J = x[ij:ij+9], row-major): it enters as an attitude error does, so
@@ -436,7 +436,7 @@ def lag_bias_rows(work, sup, x, ij, ib, m, nsup):
     return nsup + 3
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _tilt_only(x, Kt, Gt, dx, S, U, nu):
     """The gravity update's gain without its part about the vertical (3 rows, error state,
     attitude columns 0..2): gravity says nothing of the heading, and without a heading aid
@@ -458,7 +458,7 @@ def _tilt_only(x, Kt, Gt, dx, S, U, nu):
             Gt[r, j] = 0.5 * (S[0, r] * k0 + S[1, r] * k1 + S[2, r] * k2) - U[r, j]
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _vector_rows(work, sup, y0, y1, y2, var):
     """A 3-row measurement with H_att = [y]x and R = var I (accelerometer, magnetometer);
     sup: the support row."""
@@ -472,7 +472,7 @@ def _vector_rows(work, sup, y0, y1, y2, var):
             R[k, l] = var if k == l else 0.0
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _bias_rows(work, sup, ib, nsup):
     """A 3-row measurement plus a sensor bias state (h += b, H_b = I): the identity on the
     bias columns ib..ib+2 of every row, appended to the support sup (row) after nsup

@@ -60,7 +60,7 @@ from windahrs.core.events import sample_ok
 from windahrs.core.imu_screen import screen_imu
 from windahrs.core.kalman import grown_logs, log_layout, read_airspeed_scale, read_held, read_logs, read_resets
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     AIR_AIRSPEED,
     AIR_AUTO,
     AIR_OFF,
@@ -190,6 +190,7 @@ from windahrs.core.layout import (
     S_WIN,
     S_WPEND,
     SENSOR_STREAMS,
+    W_IMU,
     W_M,
     X_BA,
     X_BG,
@@ -259,7 +260,7 @@ from windahrs.models.error_state import Layout
 MAG_WAIT = 1.0
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _try_init(cfg, prm, x, flags, P, work):
     """Initialise once every sample it waits for is in: attitude by TRIAD from the mean
     specific force of the first init_window seconds and the latest field (or the given
@@ -325,7 +326,7 @@ def _try_init(cfg, prm, x, flags, P, work):
     flags[S_INIT] = 1
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _window_add(x, flags, t, row):
     """One IMU sample row = [w_b, f_b] at t s into the initialisation window: the running
     mean of the specific force, rotated into the current body frame by the gyro increment
@@ -346,7 +347,7 @@ def _window_add(x, flags, t, row):
 
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _rotate_lowpass(cfg, prm, x, flags, wx, wy, wz, dt):
     """The low-passed vectors into the new body frame,
     v <- C(Exp(w dt))^T v (w bias-corrected); with lowpass_bias, their bias sensitivities
@@ -362,7 +363,7 @@ def _rotate_lowpass(cfg, prm, x, flags, wx, wy, wz, dt):
             _age_rotated(c, x, np.int64(X_JMAG), dt)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _age_rotated(c, x, ij, dt):
     """A mean's bias sensitivity J = x[ij:ij+9] (row-major) over one step: its columns
     rotated like the mean, and every sample dt older, J <- C^T J + dt I."""
@@ -371,14 +372,14 @@ def _age_rotated(c, x, ij, dt):
         x[ij + 4 * j] += dt
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _turn(wx, wy, wz, dt):
     """C(Exp(w dt)), row-major: the body's turn over one IMU step at the rate w."""
     e = _qexp(wx * dt, wy * dt, wz * dt)
     return _dcm9(e[0], e[1], e[2], e[3])
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def _rotate_cols(c, x, i0):
     """x[i0], x[i0+3], x[i0+6] (a column of a row-major 3x3) <- C^T of it (c: C row-major)."""
     v0, v1, v2 = x[i0], x[i0 + 3], x[i0 + 6]
@@ -387,7 +388,7 @@ def _rotate_cols(c, x, i0):
     x[i0 + 6] = c[2] * v0 + c[5] * v1 + c[8] * v2
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _rotate_into(c, x, i0):
     """x[i0:i0+3] <- C^T x[i0:i0+3] (c: C row-major)."""
     v0, v1, v2 = x[i0], x[i0 + 1], x[i0 + 2]
@@ -397,7 +398,7 @@ def _rotate_into(c, x, i0):
 
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def imu_clock(cfg, prm, x, flags, P, work, t, row):
     """Every filter's first step at an IMU sample row = [w_b, f_b] at t s: keep the specific
     force, initialise when it can; returns the step dt s since the last IMU sample, or -1
@@ -420,7 +421,7 @@ def imu_clock(cfg, prm, x, flags, P, work, t, row):
     return dt
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def mag_ready(cfg, prm, x, flags, P, work, row):
     """Every filter's first step at a magnetometer sample row[:3] T: before initialisation
     keep the first sample (with an init_window, the latest) for the initial heading; returns
@@ -434,11 +435,12 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
     return True
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
     screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid source."""
-    row = screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row)
+    if screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
+        row = work[W_IMU]  # the sample propagated in its place
     dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
     if dt < 0:
         return
@@ -464,14 +466,14 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite): row[:3] tesla, body, at t s."""
     if mag_ready(cfg, prm, x, flags, P, work, row):
         fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A GNSS velocity sample (finite): row[:3] m/s NED, at t s; before initialisation the
     first sample is kept for the initial velocity."""
@@ -486,7 +488,7 @@ def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
     """An air-data sample: tas m/s (finite), aoa and sideslip rad (NaN: no vanes), at t s,
     to its aid sources: the air-data vector with both vanes (air_mode "vector", or "auto"),
@@ -526,7 +528,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
         fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
@@ -580,7 +582,7 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
         out_w[k, 0], out_w[k, 1], out_w[k, 2] = x[X_W], x[X_W + 1], x[X_W + 2]
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _record_tangent_cov(cfg, x, P, work, k, out_cov):
     """The additive filters' tangent-space covariance into out_cov[k]: T P T^T, T = blkdiag(2 Xi(q)^T, I)
     (the attitude's block alone when out_cov is (N, 3, 3), nothing when (N, 0, 0))."""
@@ -610,7 +612,7 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
             out_cov[k, i - 1, j - 1] = P[i, j]
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec, sm=None):
     """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,),
     kinds (E,), vals (E, 6)), skip and count NaN samples, and (rec) record for IMU sample k

@@ -20,10 +20,19 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 _JIT: dict[str, Any] = {"cache": True, "error_model": "numpy"}
+#: The per-sample core (the event loop, the update, the predictions, the IMU screen, the
+#: resets and the aid sources) is compiled without numba's reference counting of arrays
+#: (numba's ``_nrt`` option): it allocates nothing, every array it touches is its caller's
+#: and alive for the whole call, and counting the references of every array argument of a
+#: call and of every view (two atomic operations each) took a quarter of a filter step
+#: (perf: NRT_incref and NRT_decref 24 % of [mekf]'s loop). Code that allocates (the
+#: smoother's backward pass, [usque], the batch's parallel loop) keeps ``_JIT``; either may
+#: call the other.
+_JIT_CORE: dict[str, Any] = {**_JIT, "_nrt": False}
 #: The predictions may fuse multiply-adds (FMA: different rounding, no other effect; they
 #: symmetrise P explicitly). The updates do not: their exact symmetry relies on plain
 #: products and sums.
-_JIT_FMA: dict[str, Any] = {**_JIT, "fastmath": {"contract"}}
+_JIT_FMA: dict[str, Any] = {**_JIT_CORE, "fastmath": {"contract"}}
 
 #: The covariances a run records at most, in floats (128 MiB): a longer record keeps every
 #: k-th IMU sample's (:func:`cov_stride`). The covariance changes on the time scale of the

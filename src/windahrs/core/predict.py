@@ -15,7 +15,7 @@ import math
 from numba import njit
 
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     _JIT_FMA,
     C_ADD,
     C_AVAR,
@@ -75,7 +75,7 @@ NOISE_TAU = 3.0
 WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def track_accel_noise(cfg, prm, x, dt):
     """The accelerometer's noise on line, from the differences of consecutive samples
     (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
@@ -269,7 +269,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         P[iw + 2, iw + 2] += prm[R_WV2] * dt
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
     """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T with
     J = blkdiag(+-(I - u u^T)/|q|, I), u = q/|q| (the sign of the flip to w >= 0 in J:
@@ -421,7 +421,7 @@ def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
     _normalise_add(cfg, x, P, work, qk[0], qk[1], qk[2], qk[3])
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **_JIT_CORE)
 def held_sample_variance(change, dt):
     """Variance of the integral over a step of dt s of a signal sampled at the step's end and
     held, when the sample differs from the previous one by ``change``: the change happened at
@@ -431,7 +431,7 @@ def held_sample_variance(change, dt):
     return (change * dt) ** 2 / 3.0
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def add_held_sample_noise(cfg, prm, x, P, work, dt):
     """After the prediction over a step of dt s longer than unmeasured_motion_dt: the noise
     of holding a point sample over motion it did not measure (:func:`held_sample_variance`),
@@ -443,7 +443,7 @@ def add_held_sample_noise(cfg, prm, x, P, work, dt):
         add_unmeasured_motion(cfg, x, P, work, dt)
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def add_unmeasured_motion(cfg, x, P, work, dt):
     """The noise of motion over a step of dt s that the filter did not propagate, per body
     axis ``(dw dt)^2 / 3`` on the attitude and ``(df dt)^2 / 3`` on the INS velocity, with

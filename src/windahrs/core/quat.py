@@ -9,17 +9,17 @@ import math
 import numpy as np
 from numba import njit
 
-from windahrs.core.layout import _JIT
+from windahrs.core.layout import _JIT_CORE
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _sinc(x):
     # np.sinc, with its own guard at 0.
     y = math.pi * (1.0e-20 if x == 0.0 else x)
     return math.sin(y) / y
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _qmul(a0, a1, a2, a3, b0, b1, b2, b3):
     return (
         a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
@@ -29,14 +29,14 @@ def _qmul(a0, a1, a2, a3, b0, b1, b2, b3):
     )
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _qexp(px, py, pz):
     a = math.sqrt(px * px + py * py + pz * pz)
     s = 0.5 * _sinc(a / (2.0 * math.pi))
     return math.cos(0.5 * a), s * px, s * py, s * pz
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _qlog(q0, q1, q2, q3):
     """Log(q), the rotation vector (rad) of a unit quaternion, the shorter way round (the
     inverse of :func:`_qexp`)."""
@@ -49,14 +49,14 @@ def _qlog(q0, q1, q2, q3):
     return g * q1, g * q2, g * q3
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _qnormalize(q0, q1, q2, q3):
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     s = -1.0 if q0 < 0.0 else 1.0
     return q0 * s / n, q1 * s / n, q2 * s / n, q3 * s / n
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _dcm9(w, x, y, z):
     """C_nb entries row by row (rotation.dcm_from_quat)."""
     return (
@@ -72,7 +72,7 @@ def _dcm9(w, x, y, z):
     )
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _quat_from_euler(roll, pitch, yaw):
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
     cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
@@ -85,7 +85,7 @@ def _quat_from_euler(roll, pitch, yaw):
     )
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _euler(q0, q1, q2, q3):
     """rotation.euler_from_quat (ZYX, with its gimbal-lock rule)."""
     c = _dcm9(q0, q1, q2, q3)
@@ -96,7 +96,7 @@ def _euler(q0, q1, q2, q3):
     return math.atan2(c[7], c[8]), pitch, math.atan2(c[3], c[0])
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _triad(fx, fy, fz, use_mag, mx, my, mz, use_ref, rx, ry, rz):
     """filters.base.triad on scalars: roll and pitch from the specific force, yaw from the magnetometer."""
     nf = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -114,7 +114,7 @@ def _triad(fx, fy, fz, use_mag, mx, my, mz, use_ref, rx, ry, rz):
     return _quat_from_euler(roll, pitch, yaw + decl)
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _wrap_pi(x):
     """``(x + pi) % (2 pi) - pi`` with numpy's (floored) remainder."""
     two_pi = 2.0 * math.pi
@@ -127,7 +127,7 @@ def _wrap_pi(x):
     return r - math.pi
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _xi_into(q0, q1, q2, q3, X):
     """Xi(q) (4x3, SPEC 2.3: q_dot = Xi(q) w / 2) into X[:4, :3]."""
     X[0, 0], X[0, 1], X[0, 2] = -q1, -q2, -q3

@@ -23,7 +23,7 @@ from numba import njit
 
 from windahrs.core.kalman import _log
 from windahrs.core.layout import (
-    _JIT,
+    _JIT_CORE,
     C_ADD,
     C_IBG,
     C_N,
@@ -44,13 +44,13 @@ from windahrs.core.layout import (
 from windahrs.core.quat import _dcm9, _qmul, _qnormalize, _xi_into
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def accepted_at(x, sensor, t):
     """Remember that ``sensor`` agreed with the state at t s (module docstring)."""
     x[X_TOK + sensor] = t
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def timed_out(prm, x, sensor, t):
     """Whether ``sensor`` has not agreed with the state for longer than reset_timeout
     (never before initialisation, nor with reset_timeout 0)."""
@@ -58,7 +58,7 @@ def timed_out(prm, x, sensor, t):
     return tout > 0 and t - x[X_TOK + sensor] > tout
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def log_reset(cfg, flags, inn, acc, work, x, sensor, t, size):
     """Log a reset to ``sensor`` at t s of the given size (rad or m/s) and restart its clock."""
     nu = work[W_NU]
@@ -68,7 +68,7 @@ def log_reset(cfg, flags, inn, acc, work, x, sensor, t, size):
     x[X_TOK + sensor] = t
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def clear_rows(cfg, P, i0, k):
     """Zero the k rows and columns of P from covariance index i0 (before setting their spread)."""
     n = cfg[C_N]
@@ -78,7 +78,7 @@ def clear_rows(cfg, P, i0, k):
             P[j, i] = 0.0
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def reopen(cfg, P, i0, var, var_last):
     """The 3 error states from error-state index i0 made uncorrelated with spread var
     (the third var_last: a vertical wind held at zero has 0); additive form: covariance
@@ -88,7 +88,7 @@ def reopen(cfg, P, i0, var, var_last):
     P[j0, j0], P[j0 + 1, j0 + 1], P[j0 + 2, j0 + 2] = var, var, var_last
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def set_attitude_cov(cfg, prm, x, P, work):
     """The attitude's spread to init_att^2 per axis, uncorrelated with the other states
     (additive form: on the quaternion, ``1/4 Xi var Xi^T``); with init_yaw > 0, init_yaw^2
@@ -113,17 +113,15 @@ def set_attitude_cov(cfg, prm, x, P, work):
             P[a, a] = var
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def _set_attitude_cov_yaw(cfg, prm, x, P, work):
     """set_attitude_cov with a separate spread about the nav vertical (init_yaw)."""
     var = prm[R_P0_ATT]
     dv = prm[R_P0_YAW] - var
     w, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
     d = (2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), w * w - qx * qx - qy * qy + qz * qz)
-    P3 = np.empty((3, 3))
-    for r in range(3):
-        for c in range(3):
-            P3[r, c] = dv * d[r] * d[c] + (var if r == c else 0.0)
+    # the 3x3 spread var I + dv d d^T, entry by entry (nothing allocated: the core runs
+    # without numba's reference counting, layout._JIT_CORE)
     if cfg[C_ADD] == 1:
         clear_rows(cfg, P, 0, 4)
         Xi = work[W_M + 4 : W_M + 8]
@@ -133,16 +131,16 @@ def _set_attitude_cov_yaw(cfg, prm, x, P, work):
                 s = 0.0
                 for k in range(3):
                     for m in range(3):
-                        s += Xi[r, k] * P3[k, m] * Xi[c, m]
+                        s += Xi[r, k] * (dv * d[k] * d[m] + (var if k == m else 0.0)) * Xi[c, m]
                 P[r, c] = 0.25 * s
     else:
         clear_rows(cfg, P, 0, 3)
         for r in range(3):
             for c in range(3):
-                P[r, c] = P3[r, c]
+                P[r, c] = dv * d[r] * d[c] + (var if r == c else 0.0)
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def reset_gyro_bias(cfg, prm, x, P):
     """The gyro bias to zero with its initial spread: a bias learnt while the attitude was
     lost is not to be trusted."""
@@ -151,7 +149,7 @@ def reset_gyro_bias(cfg, prm, x, P):
     reopen(cfg, P, cfg[C_IBG], prm[R_P0_BG], prm[R_P0_BG])
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def retake_heading(cfg, prm, x, flags, t):
     """After a reset that levelled the attitude: a heading held while the tilt was lost is
     no better than the tilt was, so the next field sample that disagrees with it by more
@@ -162,7 +160,7 @@ def retake_heading(cfg, prm, x, flags, t):
         flags[S_MAGN] = 0
 
 
-@njit(**_JIT)
+@njit(**_JIT_CORE)
 def level_to(x, ux, uy, uz, dx=0.0, dy=0.0, dz=1.0):
     """Rotate the attitude by the smallest body-frame rotation that makes the nav-frame
     direction d (default: down) point along (ux, uy, uz) in body axes (neither need be

@@ -310,31 +310,36 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
     Returns times (E,), kinds (E,) (EVENT_* codes) and values (E, 6) (IMU: w_b, f_b;
     mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN).
     """
-    parts: list[tuple[F64, int, F64]] = []
     imu = flight.imu
-    parts.append((imu.t, EVENT_IMU, np.hstack([imu.w_b, imu.f_b])))
+    # (stream times, EVENT_* code, its columns); the IMU's two blocks written in place
+    parts: list[tuple[F64, int, tuple[F64, ...]]] = [(imu.t, EVENT_IMU, (imu.w_b, imu.f_b))]
     if "mag" in use and flight.mag is not None:
-        parts.append((flight.mag.t, EVENT_MAG, flight.mag.mag_b))
+        parts.append((flight.mag.t, EVENT_MAG, (flight.mag.mag_b,)))
     if "gnss" in use and flight.gnss is not None:
-        parts.append((flight.gnss.t, EVENT_GNSS, flight.gnss.v_n))
+        parts.append((flight.gnss.t, EVENT_GNSS, (flight.gnss.v_n,)))
     if "air" in use and flight.air is not None:
         a = flight.air
         n = len(a.t)
         aoa = a.aoa if a.aoa is not None else np.full(n, np.nan)
         beta = a.sideslip if a.sideslip is not None else np.full(n, np.nan)
-        parts.append((a.t, EVENT_AIR, np.column_stack([a.tas, aoa, beta])))
+        parts.append((a.t, EVENT_AIR, (np.column_stack([a.tas, aoa, beta]),)))
     t = np.concatenate([p[0] for p in parts])
     kinds = np.concatenate([np.full(len(p[0]), p[1], dtype=np.int64) for p in parts])
-    vals = np.full((len(t), 6), np.nan)
+    vals = np.empty((len(t), 6))
     row = 0
     for p in parts:
-        vals[row : row + len(p[0]), : p[2].shape[1]] = p[2]
-        row += len(p[0])
+        r1, col = row + len(p[0]), 0
+        for block in p[2]:
+            vals[row:r1, col : col + block.shape[1]] = block
+            col += block.shape[1]
+        vals[row:r1, col:] = np.nan
+        row = r1
     # by time, and at equal times in the kinds' order: the parts are concatenated in that
     # order (EVENT_IMU first) and the sort is stable (each part nearly sorted already: the
-    # stable sort merges the runs, several times faster than a lexsort on (kinds, t))
+    # stable sort merges the runs, several times faster than a lexsort on (kinds, t));
+    # take() gathers the rows several times faster than fancy indexing
     order = np.argsort(t, kind="stable")
-    return t[order], kinds[order], vals[order]
+    return t.take(order), kinds.take(order), vals.take(order, axis=0)
 
 
 class Estimator(ABC):
