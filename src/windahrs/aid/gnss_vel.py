@@ -75,6 +75,7 @@ from windahrs.core.layout import (
     X_AGNSS,
     X_AINS,
     X_BA,
+    X_BM,
     X_FBAR,
     X_TGNSS,
     X_V,
@@ -193,7 +194,9 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
         for a in range(3):
             x[X_BA + a] = 0.0
         reopen(cfg, P, cfg[C_IBA], prm[R_P0_BA], prm[R_P0_BA])
-    if cfg[C_IBM] >= 0:
+    if cfg[C_IBM] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
+        for a in range(3):
+            x[X_BM + a] = 0.0
         reopen(cfg, P, cfg[C_IBM], prm[R_P0_BM], prm[R_P0_BM])
     flags[S_HEADLESS] = 1  # the heading from the next field sample (aid.mag.fuse_mag)
     if cfg[C_IW] >= 0:
