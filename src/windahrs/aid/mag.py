@@ -238,7 +238,9 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
     """With lowpass_bias, the low-passed field's gyro-bias columns (H_b = H_att J, J its
     bias sensitivity x[X_JMAG], :func:`windahrs.core.kalman.lag_bias_rows`) on the m rows
-    just written; returns the support size."""
+    just written; returns the support size. Called in 3-D fusion only, where the kernel
+    keeps J (``core.kernel._rotate_lowpass``): on the heading-only model the columns took the
+    field's changes from place to place into the vertical gyro bias (docs/RESULTS.md 18)."""
     ib = cfg[C_IBG]
     if flags[S_MBAR] == 1 and prm[R_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
         return lag_bias_rows(work, sup, x, np.int64(X_JMAG), ib, m, nsup)
