@@ -87,6 +87,7 @@ from windahrs.core.reset import (
     log_reset,
     reopen,
     reset_gyro_bias,
+    restart,
     set_attitude_cov,
     timed_out,
 )
@@ -191,13 +192,9 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     set_attitude_cov(cfg, prm, x, P, work)
     reset_gyro_bias(cfg, prm, x, P)
     if cfg[C_IBA] >= 0:
-        for a in range(3):
-            x[X_BA + a] = 0.0
-        reopen(cfg, P, cfg[C_IBA], prm[R_P0_BA], prm[R_P0_BA])
+        restart(cfg, x, P, X_BA, cfg[C_IBA], prm[R_P0_BA])
     if cfg[C_IBM] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
-        for a in range(3):
-            x[X_BM + a] = 0.0
-        reopen(cfg, P, cfg[C_IBM], prm[R_P0_BM], prm[R_P0_BM])
+        restart(cfg, x, P, X_BM, cfg[C_IBM], prm[R_P0_BM])
     flags[S_HEADLESS] = 1  # the heading from the next field sample (aid.mag.fuse_mag)
     if cfg[C_IW] >= 0:
         reopen(cfg, P, cfg[C_IW], prm[R_P0_W], prm[R_P0_WV])

@@ -144,9 +144,16 @@ def _set_attitude_cov_yaw(cfg, prm, x, P, work):
 def reset_gyro_bias(cfg, prm, x, P):
     """The gyro bias to zero with its initial spread: a bias learnt while the attitude was
     lost is not to be trusted."""
+    restart(cfg, x, P, X_BG, cfg[C_IBG], prm[R_P0_BG])
+
+
+@njit(**_JIT_CORE)
+def restart(cfg, x, P, ix, i0, var):
+    """A 3-vector state x[ix:ix+3] (a bias) back to zero, its error states from index i0
+    reopened with spread var: learnt while the attitude was lost, it is not to be trusted."""
     for a in range(3):
-        x[X_BG + a] = 0.0
-    reopen(cfg, P, cfg[C_IBG], prm[R_P0_BG], prm[R_P0_BG])
+        x[ix + a] = 0.0
+    reopen(cfg, P, i0, var, var)
 
 
 @njit(**_JIT_CORE)
