@@ -17,7 +17,15 @@ from scipy.stats import chi2
 
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
-from windahrs.rotation import euler_from_quat, quat_conj, quat_exp, quat_log, quat_mul, quat_rotate_inv
+from windahrs.rotation import (
+    circular_mean,
+    euler_from_quat,
+    quat_conj,
+    quat_exp,
+    quat_log,
+    quat_mul,
+    quat_rotate_inv,
+)
 
 __all__ = [
     "AttitudeErrors",
@@ -77,8 +85,7 @@ def _interp_ref(t_ref: F64, q_ref: F64, t: F64) -> tuple[F64, NDArray[np.bool_]]
 def heading_offset(q_est: F64, q_ref: F64) -> float:
     """The constant rotation about the nav vertical that best aligns the reference to the
     estimate (circular mean of the yaw differences), rad."""
-    d = euler_from_quat(q_est)[:, 2] - euler_from_quat(q_ref)[:, 2]
-    return float(np.arctan2(np.mean(np.sin(d)), np.mean(np.cos(d))))
+    return circular_mean(euler_from_quat(q_est)[:, 2] - euler_from_quat(q_ref)[:, 2])
 
 
 def attitude_errors(est: Estimate, flight: Flight, *, remove_heading: bool | None = None) -> AttitudeErrors:

@@ -11,6 +11,8 @@ dcm(p) @ dcm(q)``. Body-frame (right) perturbation: ``q = q_hat * Exp(dtheta)``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -18,6 +20,7 @@ from windahrs.conventions import P_ENU_NED
 
 __all__ = [
     "air_direction",
+    "circular_mean",
     "dcm_from_quat",
     "euler_from_quat",
     "euler_rate_map",
@@ -39,6 +42,7 @@ __all__ = [
     "quat_rotate_inv",
     "right_jacobian",
     "skew",
+    "twist_angle",
     "vec_enu_to_ned",
     "vec_ned_to_enu",
 ]
@@ -137,6 +141,20 @@ def quat_log(q: ArrayLike) -> F64:
     safe_n = np.where(n > 1e-12, n, 1.0)
     scale = np.where(n > 1e-12, 2.0 * np.arctan2(n, w) / safe_n, 2.0 / np.maximum(w, 1e-300))
     return scale * u
+
+
+def twist_angle(q: ArrayLike) -> F64:
+    """The angle (..., ) rad of each quaternion's twist about the z axis (the part of a
+    nav-frame rotation ``q_a * q_b^-1`` that is a heading change): ``2 atan2(q_z, q_w)``, in
+    (-2 pi, 2 pi]."""
+    q = _arr(q)
+    return 2.0 * np.arctan2(q[..., 3], q[..., 0])
+
+
+def circular_mean(angle: ArrayLike) -> float:
+    """The mean direction of angles (rad): ``atan2(mean sin, mean cos)``, in [-pi, pi]."""
+    a = _arr(angle)
+    return math.atan2(float(np.mean(np.sin(a))), float(np.mean(np.cos(a))))
 
 
 def quat_angle(q_a: ArrayLike, q_b: ArrayLike) -> F64:

@@ -131,7 +131,7 @@ from windahrs.core.layout import (
 from windahrs.core.predict import _predict_es, add_held_sample_noise
 from windahrs.core.quat import _qexp, _qlog, _qmul, _qnormalize
 from windahrs.filters.base import Estimator
-from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul
+from windahrs.rotation import circular_mean, quat_conj, quat_exp, quat_log, quat_mul, twist_angle
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -552,15 +552,6 @@ def _lost(t: F64, resets: dict[str, F64]) -> NDArray[np.bool_]:
     return lost
 
 
-def _heading_observed(est: Any, flight: Flight) -> bool:
-    """Whether an aid source measures the heading: a magnetometer, or GNSS velocity into a
-    velocity state."""
-    from windahrs.core.kernel import layout_for
-
-    gnss = layout_for(est.kind, est.params).has("v") and "gnss" in est.uses and flight.gnss is not None
-    return gnss or ("mag" in est.uses and flight.mag is not None)
-
-
 def _smooth_two_filter(est: Any, flight: Flight, initial: InitialState | None, name: str) -> Estimate:
     """The two-filter smoother (Fraser and Potter 1969): the filter run forward and on
     :func:`reversed_flight`, the two posteriors at each IMU sample fused by their
@@ -594,15 +585,12 @@ def _smooth_two_filter(est: Any, flight: Flight, initial: InitialState | None, n
         # each pass took its heading datum from its own first magnetometer samples, and its
         # heading drifts with its own vertical gyro bias error: the heading between them,
         # fitted as an offset plus a drift, is turned out of the backward pass
-        e = quat_mul(q_b[both], quat_conj(fw.nom[both, N_Q : N_Q + 4]))
-        psi = 2.0 * np.arctan2(e[:, 3], e[:, 0])
-        off = float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi))))
+        psi = twist_angle(quat_mul(q_b[both], quat_conj(fw.nom[both, N_Q : N_Q + 4])))
+        off = circular_mean(psi)
         tm = float(np.mean(t[both]))
         drift, off2 = np.polyfit(t[both] - tm, np.angle(np.exp(1j * (psi - off))), 1)
         turn = off + off2 + drift * (t - tm)
-        rz = np.zeros((N, 4))
-        rz[:, 0], rz[:, 3] = np.cos(turn / 2), -np.sin(turn / 2)
-        q_b = quat_mul(rz, q_b)
+        q_b = quat_mul(quat_exp(np.outer(-turn, [0.0, 0.0, 1.0])), q_b)
     T = np.zeros((dim, dim))
     x_b = np.zeros((N, dim))
     cols = {"bg": N_BG, "v": N_V, "wind": N_W, "ba": N_BA, "bm": N_BM}
@@ -647,15 +635,29 @@ def _smooth_two_filter(est: Any, flight: Flight, initial: InitialState | None, n
         x = nom[:, cols[block] : cols[block] + 3]
         x[both] += dx[:, sl]
         x[only_b] = x_b[only_b, sl]
-    if not _heading_observed(est, flight):
+    gnss_v = L.has("v") and "gnss" in est.uses and flight.gnss is not None
+    if not (mag or gnss_v):
         # nothing measures the heading: the passes' headings are two gyro integrations from
         # datums of their own, so the smoothed attitude keeps the forward pass's heading
-        e = quat_mul(nom[both, N_Q : N_Q + 4], quat_conj(run.q[both]))  # smoothed against forward
-        twist = np.zeros((int(both.sum()), 4))
-        twist[:, 0], twist[:, 3] = e[:, 0], e[:, 3]
-        q[both] = quat_mul(quat_conj(twist / np.linalg.norm(twist, axis=1)[:, None]), q[both])
+        psi = twist_angle(quat_mul(q[both], quat_conj(run.q[both])))  # smoothed against forward
+        q[both] = quat_mul(quat_exp(np.outer(-psi, [0.0, 0.0, 1.0])), q[both])
     ok = ok_f | ok_b
-    run.q[ok] = q[ok] / np.linalg.norm(q[ok], axis=1)[:, None]
+    q[ok] /= np.linalg.norm(q[ok], axis=1)[:, None]
+    return _smoothed_estimate(est, run, nom, P, ok, name, "two-filter")
+
+
+def _smooth_compiled(est: Any, flight: Flight, initial: InitialState | None, name: str) -> Estimate:
+    run, sm = forward_record(est, flight, initial)
+    st = run.st
+    backward(st.cfg, st.prm, sm.nom, sm.P, sm.aux, st.P.shape[0])
+    return _smoothed_estimate(est, run, sm.nom, sm.P, sm.aux[:, A_INIT] == 1.0, name, "rts")
+
+
+def _smoothed_estimate(est: Any, run: Any, nom: F64, P: F64, ok: NDArray[np.bool_], name: str, method: str) -> Estimate:
+    """The Estimate of a smoothed run: the smoothed nominal state (record columns N_*) and
+    covariance at the samples ``ok``, the forward pass's outputs elsewhere with no
+    covariance; labelled ``name``, ``meta["smoother"]`` = method."""
+    run.q[ok] = nom[ok, N_Q : N_Q + 4]
     run.bg[ok] = nom[ok, N_BG : N_BG + 3]
     if run.v.shape[0]:
         run.v[ok] = nom[ok, N_V : N_V + 3]
@@ -664,24 +666,7 @@ def _smooth_two_filter(est: Any, flight: Flight, initial: InitialState | None, n
     P[~ok] = np.nan
     run.st.cfg[C_COV_EVERY] = 1
     out: Estimate = est.finish(run._replace(cov=P))
-    return dataclasses.replace(out, filter=name, meta={**out.meta, "smoother": "two-filter"})
-
-
-def _smooth_compiled(est: Any, flight: Flight, initial: InitialState | None, name: str) -> Estimate:
-    run, sm = forward_record(est, flight, initial)
-    st = run.st
-    backward(st.cfg, st.prm, sm.nom, sm.P, sm.aux, st.P.shape[0])
-    ok = sm.aux[:, A_INIT] == 1.0
-    run.q[ok] = sm.nom[ok, N_Q : N_Q + 4]
-    run.bg[ok] = sm.nom[ok, N_BG : N_BG + 3]
-    if run.v.shape[0]:
-        run.v[ok] = sm.nom[ok, N_V : N_V + 3]
-    if run.w.shape[0]:
-        run.w[ok] = sm.nom[ok, N_W : N_W + 3]
-    sm.P[~ok] = np.nan
-    st.cfg[C_COV_EVERY] = 1
-    out: Estimate = est.finish(run._replace(cov=sm.P))
-    return dataclasses.replace(out, filter=name, meta={**out.meta, "smoother": "rts"})
+    return dataclasses.replace(out, filter=name, meta={**out.meta, "smoother": method})
 
 
 def forward_record(est: Any, flight: Flight, initial: InitialState | None = None) -> tuple[Any, SmoothRecord]:

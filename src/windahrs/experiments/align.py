@@ -46,7 +46,16 @@ from numpy.typing import NDArray
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight, GnssStream, Reference
 from windahrs.metrics import reference_of
-from windahrs.rotation import euler_from_quat, quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
+from windahrs.rotation import (
+    circular_mean,
+    euler_from_quat,
+    quat_conj,
+    quat_exp,
+    quat_log,
+    quat_mul,
+    quat_normalize,
+    twist_angle,
+)
 
 __all__ = [
     "ALIGN_RESIDUAL_DEG",
@@ -219,10 +228,7 @@ def _time_offset(
 
 def _heading_part(q: F64) -> F64:
     """The rotation about the nav z axis closest to each q, as one averaged quaternion."""
-    qn = quat_normalize(q)
-    psi = 2.0 * np.arctan2(qn[:, 3], qn[:, 0])
-    mean = math.atan2(float(np.mean(np.sin(psi))), float(np.mean(np.cos(psi))))
-    return quat_exp(np.array([0.0, 0.0, mean]))
+    return quat_exp(np.array([0.0, 0.0, circular_mean(twist_angle(quat_normalize(q)))]))
 
 
 def _heading_and_mount(qe: F64, qr: F64, mount: F64) -> tuple[F64, F64]:
