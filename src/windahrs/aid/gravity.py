@@ -110,8 +110,10 @@ PARAMS = (
 @njit(inline="always", **_JIT_CORE)
 def knows_gravity(cos_d, fn, g):
     """Whether a state still knows gravity, given the cosine cos_d between its down direction
-    and the measured one (-f / |f|) and the force's length fn m/s^2: within 45 deg
-    (LOST_COS), and, beyond ACCEL_TURN_COS, only with a length that an acceleration explains."""
+    and the measured one (-f / |f|, f the sample or its mean) and the length fn m/s^2 of the
+    sample itself (not of a mean: a turn's force, turning in the gyro-compensated frame,
+    averages out of a mean and leaves it near g): within 45 deg (LOST_COS), and, beyond
+    ACCEL_TURN_COS, only with a length that an acceleration explains."""
     return cos_d > LOST_COS and (cos_d > ACCEL_TURN_COS or abs(fn - g) > ACCEL_TURN_NORM * g)
 
 
@@ -163,6 +165,9 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         k1 = c[1] * ax + c[4] * ay + c[7] * az
         k2 = c[2] * ax + c[5] * ay + c[8] * az
         has_k = True
+    # the sample's own length (compensated): a mean's is no measure of acceleration, since a
+    # turn's force, turning in the gyro-compensated frame, averages out of it (knows_gravity)
+    f_now = math.sqrt((fx - k0) ** 2 + (fy - k1) ** 2 + (fz - k2) ** 2)
     if flags[S_FBAR] == 1:  # the mean of the compensated specific force, no compensation after
         a = _lowpass_gain(dt, prm[R_ACC_LP])
         if has_k:
@@ -178,11 +183,11 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gx, gy, gz = (fx - k0, fy - k1, fz - k2) if has_k else (fx, fy, fz)
     # the state still knows gravity while the measured down direction is within 45 deg of
     # its C_bn e_3 = -y / g, accepted or not (a sustained acceleration is gated out, and
-    # the filter rightly coasts on the gyro through it), unless the measured force has
-    # gravity's length while beyond ACCEL_TURN_COS of the state's down: no acceleration
-    # turns it that far without lengthening it
+    # the filter rightly coasts on the gyro through it), unless the sample has gravity's
+    # length while the measured down is beyond ACCEL_TURN_COS of the state's: no acceleration
+    # turns the force that far without lengthening it
     fn = math.sqrt(gx * gx + gy * gy + gz * gz)
-    if knows_gravity((gx * y0 + gy * y1 + gz * y2) / (g * fn), fn, g):
+    if knows_gravity((gx * y0 + gy * y1 + gz * y2) / (g * fn), f_now, g):
         accepted_at(x, sensor, t)
     elif timed_out(prm, x, sensor, t):  # gravity far off the state for too long: level to it
         angle = level_to(x, -gx, -gy, -gz)

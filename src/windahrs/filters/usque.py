@@ -378,6 +378,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
         if cfg[C_AVAR] >= 1:
             track_accel_noise(cfg, prm, x, dt)
     var = accel_variance(cfg, prm, x)
+    f_now = math.sqrt(fx * fx + fy * fy + fz * fz)  # the sample's own length (knows_gravity)
     if flags[S_FBAR] == 1:
         fx, fy, fz = blend_mean(prm, x, _lowpass_gain(dt, prm[R_ACC_LP]), fx, fy, fz)
     nu = work[U_NU]
@@ -391,7 +392,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
     # measured down direction -f too far from the state's C_bn e_3 for reset_timeout
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     sensor = np.int64(INN_ACCEL)
-    if knows_gravity(-(fx * c[6] + fy * c[7] + fz * c[8]) / f_norm, f_norm, g):
+    if knows_gravity(-(fx * c[6] + fy * c[7] + fz * c[8]) / f_norm, f_now, g):
         accepted_at(x, sensor, t)
     elif timed_out(prm, x, sensor, t):
         angle = level_to(x, -fx, -fy, -fz)
