@@ -13,7 +13,14 @@ import pytest
 import windahrs as wa
 from windahrs.cli import main
 from windahrs.estimate import Estimate, Innovations
-from windahrs.experiments.faults import FaultCase, first_flag, recovery_time, run_fault_matrix
+from windahrs.experiments.faults import (
+    FaultCase,
+    counts,
+    first_flag,
+    matrix_markdown,
+    recovery_time,
+    run_fault_matrix,
+)
 from windahrs.flags import FLAGS
 from windahrs.flight import Flight
 from windahrs.io import read_flight
@@ -221,6 +228,18 @@ def test_matrix_row_on_a_tiny_flight() -> None:
     (row,) = res.rows
     assert row.fault == "spike" and row.filter == "mekf" and row.nan_count == 0
     assert row.max_during_deg > row.rms_during_deg > 0 and row.t_start_s == 3.0
+
+
+def test_a_fault_that_changes_no_sample_is_left_out_of_the_counts() -> None:
+    # a gyro clipped at 10 rad/s: the simulated fixed wing never turns that fast
+    cases = [FaultCase("clip-10", (F.GyroSaturation(start=2.0, duration=2.0, limit=10.0),)),
+             FaultCase("clip-0.01", (F.GyroSaturation(start=2.0, duration=2.0, limit=0.01),))]
+    res = run_fault_matrix("fixedwing", ["mekf"], duration=6.0, seed=1, cases=cases)
+    idle, live = res.rows
+    assert idle.no_effect and not live.no_effect
+    c = counts(res.rows)
+    assert (c.runs, c.no_effect) == (1, 1) and c.flagged == int(live.flagged) and c.with_nan == 0
+    assert "the fault changed no sample" in matrix_markdown([res])
 
 
 def test_faults_command_writes_the_documented_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -100,8 +100,16 @@ def test_late_magnetometer_start_without_it_then_turn_to_it() -> None:
     assert flight.mag is not None and flight.mag.t[0] >= 10.0
     est = _quiet_run("mekf", flight)
     assert est.cov is not None
-    k_init = int(np.argmax(np.isfinite(est.cov[:, 0, 0])))
+    k_init = est.first_initialised
+    assert est.init_index == k_init
     assert est.t[k_init] - est.t[0] == pytest.approx(1.0, abs=0.02)  # core.kernel.MAG_WAIT
+    # the waiting second has the state it would start from: finite, flagged not_initialised,
+    # level within the specific force's tilt, and the covariance the filter starts with
+    assert np.isfinite(est.cov).all() and np.isfinite(est.q_nb).all()
+    assert est.flags is not None
+    assert all(est.flags[:k_init] & _bit("not_initialised")) and not any(est.flags[k_init:] & _bit("not_initialised"))
+    tilt = attitude_errors(est, flight).tilt[:k_init]
+    assert np.degrees(tilt).max() < 5.0
     (row,) = est.resets["mag"]
     assert row[0] == flight.mag.t[0] and np.isnan(row[2])
     assert any("mag taken for the heading (absent at the start" in line for line in est.warnings())
@@ -162,6 +170,30 @@ def test_a_clipped_axis_is_flagged(fixedwing: Flight) -> None:
     assert np.array_equal((est.flags & _bit("imu_clipped")) != 0, on)
 
 
+def test_an_axis_held_at_a_small_value_is_flagged(fixedwing: Flight) -> None:
+    """A range set below the motion (or a stuck axis): one gyro axis holds one value for
+    0.5 s while the others move; 0.2 s (flags.STUCK_S) later it is flagged."""
+    t, w = fixedwing.imu.t, fixedwing.imu.w_b.copy()
+    on = (t >= 10.0) & (t < 10.5)
+    w[on, 2] = 0.05
+    est = _quiet_run("mekf", _with_imu(fixedwing, w, fixedwing.imu.f_b))
+    assert est.flags is not None
+    hit = est.t[(est.flags & _bit("imu_clipped")) != 0]
+    assert len(hit) and hit[0] >= 9.99 and hit[-1] < 10.5 and not any(est.flags[t > 10.6] & _bit("imu_clipped"))
+
+
+def test_a_gnss_velocity_jump_is_flagged_even_by_a_filter_without_gnss(fixedwing: Flight) -> None:
+    """mekf fuses no GNSS velocity; the jump is still flagged at its two steps, from the
+    IMU's acceleration in mekf's attitude (drift.gnss_jump), and not on the clean flight."""
+    faulty = F.inject(fixedwing, [F.GnssJump(start=10.0, duration=5.0)], seed=0)
+    for spec in ("mekf", "ins-wind"):
+        clean, est = _quiet_run(spec, fixedwing), _quiet_run(spec, faulty)
+        assert clean.flags is not None and est.flags is not None
+        assert not any(clean.flags & _bit("gnss_jump"))
+        hit = est.t[(est.flags & _bit("gnss_jump")) != 0]
+        assert len(hit) == 2 and abs(hit[0] - 10.0) < 0.11 and abs(hit[1] - 15.0) < 0.11, hit
+
+
 def test_flag_names_and_spans() -> None:
     t = np.arange(10) * 0.1
     flags = np.zeros(10, dtype=np.uint32)
@@ -187,6 +219,7 @@ def test_the_covariance_is_kept_within_its_budget(fixedwing: Flight, tmp_path: o
     back = load_estimate(path)
     assert back.cov_index is not None and np.array_equal(back.cov_index, thin.cov_index)
     assert back.flags is not None and thin.flags is not None and np.array_equal(back.flags, thin.flags)
+    assert back.init_index == thin.init_index == thin.first_initialised
     with pytest.raises(ValueError, match="estimate.cov"):
         Estimate(filter="x", t=full.t, q_nb=full.q_nb, cov=full.cov, state_labels=full.state_labels,
                  cov_index=np.arange(0, n, 7))

@@ -64,6 +64,7 @@ from windahrs.filters.usque import (
     _weighted_cov,
     sqrt_cov,
 )
+from windahrs.flags import FLAGS
 from windahrs.flight import Flight, ImuStream, MagStream, Site
 from windahrs.metrics import attitude_errors, chi2_band, nees_attitude
 from windahrs.models.error_state import NominalState
@@ -601,10 +602,12 @@ def test_nan_samples_skipped_and_counted() -> None:
     assert est.skipped == {"imu": 4, "mag": 2, "gnss": 0, "air": 0}
     assert np.isfinite(est.q_nb).all() and np.isfinite(est.cov).all()  # type: ignore[arg-type]
     assert attitude_errors(est, bad).total[-1] < 1.0 * DEG
-    # NaN in the very first samples: the initialisation waits (covariance NaN until then)
+    # NaN in the very first samples: the initialisation waits (the rows until then hold the
+    # state it would start from, flagged not_initialised)
     est = Usque().run(fixedwing("nan"))
     assert est.skipped["imu"] > 0 and est.skipped["mag"] > 0
-    assert est.cov is not None and np.isnan(est.cov[0]).all() and np.isfinite(est.cov[-1]).all()
+    assert est.cov is not None and np.isfinite(est.cov).all() and est.first_initialised == est.init_index > 0
+    assert est.flags is not None and all(est.flags[: est.init_index] & (1 << FLAGS["not_initialised"][0]))
 
 
 def test_imu_only_unknown_site_and_bad_params() -> None:

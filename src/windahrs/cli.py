@@ -273,7 +273,7 @@ def _faults(specs: list[str] | None) -> list[Fault]:
 def _cmd_faults(args: argparse.Namespace) -> int:
     import json
 
-    from windahrs.experiments.faults import check_cases, default_cases, matrix_markdown, run_fault_matrix
+    from windahrs.experiments.faults import check_cases, counts, default_cases, matrix_markdown, run_fault_matrix
     from windahrs.filters.registry import make_estimator
     from windahrs.store import write_bytes
 
@@ -310,13 +310,10 @@ def _cmd_faults(args: argparse.Namespace) -> int:
     write_bytes(args.out / "faults.md", matrix_markdown([res]).encode("utf-8"))
     for note in res.not_run:
         _note(f"not run: {note}")
-    n = len(res.rows)
-    flagged = sum(r.flagged for r in res.rows)
-    in_span = sum(r.flagged_span for r in res.rows)
-    recovered = sum(r.recover_s is not None and r.recover_s <= 10.0 for r in res.rows)
-    nans = sum(r.nan_count > 0 for r in res.rows)
-    print(f"{n} runs: {flagged} flagged within 1 s ({in_span} within the fault's span), {recovered} back under "
-          f"twice the pre-fault RMS within 10 s, {nans} with NaN in the estimate")
+    c = counts(res.rows)
+    idle = f" ({c.no_effect} more whose fault changed no sample)" if c.no_effect else ""
+    print(f"{c.runs} runs{idle}: {c.flagged} flagged within 1 s ({c.flagged_span} within the fault's span), "
+          f"{c.recovered} back under twice the pre-fault RMS within 10 s, {c.with_nan} with NaN in the estimate")
     print(f"wrote {args.out / 'faults.md'}")
     print(f"wrote {args.out / 'faults.json'}")
     return 0

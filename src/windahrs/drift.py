@@ -27,6 +27,16 @@ a pitot's drift. A sample is drifting when that residual exceeds :data:`AIR_DRIF
 standard deviations of the flight's own residual (its robust spread, 1.4826 times the median
 absolute deviation: the flight's turbulence and the pitot's noise, whatever the weather).
 Needs air data and GNSS velocity.
+
+**GNSS velocity jump** (:func:`gnss_jump`). Between two GNSS samples the velocity changes by
+the integral of the acceleration, ``C_nb f_b + g``, which the IMU measures and the estimate's
+attitude turns into NED. The GNSS velocity's change minus that integral leaves the two
+samples' noise, the accelerometer's bias over the interval and the attitude's error times
+the specific force; a multipath or a constellation switch that moves the velocity by metres
+per second in one step stands out of it. A sample jumps when that residual, on any axis, is
+beyond :data:`GNSS_JUMP_GATE` standard deviations of the flight's own residual (1.4826 MAD)
+and at least :data:`GNSS_JUMP_MIN_MS`. This needs no velocity state, so it flags a jump for
+the filters that do not fuse GNSS ([mekf]) as well as for those whose gate takes it up.
 """
 
 from __future__ import annotations
@@ -50,6 +60,10 @@ __all__ = [
     "MAG_REF_S",
     "air_drift",
     "air_drift_residual",
+    "GNSS_JUMP_GATE",
+    "GNSS_JUMP_MIN_MS",
+    "gnss_jump",
+    "gnss_jump_residual",
     "mag_drift",
     "mag_drift_share",
 ]
@@ -82,6 +96,12 @@ AIR_DRIFT_GATE = 5.0
 #: airspeed's noise: the difference of two airspeed samples at PX4's airspeed noise
 #: (ASPD_TAS_NOISE, 1.4 m/s, its airspeed selector's), at two standard deviations.
 AIR_DRIFT_MIN_MS = 2.0 * math.sqrt(2.0) * 1.4
+#: Standard deviations of the flight's own GNSS residual: PX4's GNSS velocity gate
+#: (EKF2_GPS_V_GATE, 5), as the estimators' gate_gnss.
+GNSS_JUMP_GATE = 5.0
+#: ... and at least this, m/s: the difference of two GNSS velocity samples at PX4's smallest
+#: GNSS velocity noise (EKF2_GPS_V_NOIS, 0.3 m/s), at that gate.
+GNSS_JUMP_MIN_MS = GNSS_JUMP_GATE * math.sqrt(2.0) * 0.3
 
 
 def _at(t: F64, t_est: F64) -> NDArray[np.int64]:
@@ -176,4 +196,53 @@ def air_drift(est: Estimate, flight: Flight) -> tuple[F64, B]:
     spread = 1.4826 * float(np.median(np.abs(r[fin] - med)))
     lim = max(AIR_DRIFT_GATE * spread, AIR_DRIFT_MIN_MS)
     on[fin] = np.abs(r[fin] - med) > lim
+    return t, on
+
+
+def gnss_jump_residual(est: Estimate, flight: Flight) -> tuple[F64, F64]:
+    """The GNSS times (K,) s and, at each, (K, 3) m/s NED: the GNSS velocity's change since
+    the previous finite sample minus the IMU's acceleration integrated over the interval
+    (the estimate's attitude, :func:`~windahrs.rotation.quat_rotate` of the specific force,
+    plus gravity; NaN where it cannot be formed: the first sample, before the estimate is
+    initialised, across an IMU gap). Empty without GNSS velocity."""
+    from windahrs.conventions import GRAVITY_N
+
+    g, imu = flight.gnss, flight.imu
+    if g is None or len(est.t) < 2:
+        return np.empty(0), np.empty((0, 3))
+    out = np.full((len(g.t), 3), np.nan)
+    q = est.q_nb
+    ok = np.isfinite(q).all(axis=1) & np.isfinite(imu.f_b).all(axis=1) & (imu.t >= _initialised_at(est))
+    if ok.sum() < 2:
+        return g.t, out
+    a = np.where(ok[:, None], quat_rotate(np.where(ok[:, None], q, [1.0, 0.0, 0.0, 0.0]), imu.f_b) + GRAVITY_N, 0.0)
+    dt = np.diff(imu.t)
+    # the velocity the IMU integrates, at its samples (each step's acceleration, its end's
+    # sample: w_b[k] and f_b[k] are the means over (t[k-1], t[k]])
+    vel = np.r_[[np.zeros(3)], np.cumsum(a[1:] * dt[:, None], axis=0)]
+    bad = np.r_[0, np.cumsum((~ok[1:]) | (dt > 0.5))]  # steps without a usable sample, so far
+    gok = np.flatnonzero(np.isfinite(g.v_n).all(axis=1) & (g.t >= _initialised_at(est))
+                         & (g.t >= imu.t[0]) & (g.t <= imu.t[-1]))  # fmt: skip
+    if len(gok) < 2:
+        return g.t, out
+    i0, i1 = gok[:-1], gok[1:]
+    vi = np.column_stack([np.interp(g.t[gok], imu.t, vel[:, c]) for c in range(3)])
+    k = np.searchsorted(imu.t, g.t[gok], side="left").clip(max=len(imu.t) - 1)
+    clean = bad[k[1:]] == bad[k[:-1]]  # no unusable IMU step between the two GNSS samples
+    r = (g.v_n[i1] - g.v_n[i0]) - (vi[1:] - vi[:-1])
+    out[i1[clean]] = r[clean]
+    return g.t, out
+
+
+def gnss_jump(est: Estimate, flight: Flight) -> tuple[F64, B]:
+    """The GNSS times and which samples jump (module docstring)."""
+    t, r = gnss_jump_residual(est, flight)
+    on = np.zeros(len(t), dtype=bool)
+    fin = np.isfinite(r).all(axis=1)
+    if fin.sum() < 10:
+        return t, on
+    med = np.median(r[fin], axis=0)
+    spread = 1.4826 * np.median(np.abs(r[fin] - med), axis=0)
+    lim = np.maximum(GNSS_JUMP_GATE * spread, GNSS_JUMP_MIN_MS)
+    on[fin] = (np.abs(r[fin] - med) > lim).any(axis=1)
     return t, on

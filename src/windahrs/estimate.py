@@ -142,6 +142,11 @@ class Estimate:
     (``airspeed_scale=true``, :mod:`windahrs.aid.airspeed_scale`) at each air sample, (K, 5)
     rows [t s, scale (true / measured airspeed), its standard deviation, the scale
     estimator's airspeed innovation m/s, accepted (1) or rejected (0) by its gate], or None.
+    init_index: the first sample at which the estimator had started (``len(t)``: it never
+    did), or None (not recorded: the covariance's first finite row tells,
+    :attr:`first_initialised`). The filters on the error-state core record the state and
+    covariance they would start from in the rows before it, finite, flagged
+    ``not_initialised``.
     """
 
     filter: str
@@ -162,6 +167,7 @@ class Estimate:
     cov_index: NDArray[np.int64] | None = None
     repairs: dict[str, dict[str, int]] = field(default_factory=dict)
     airspeed_scale: F64 | None = None
+    init_index: int | None = None
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -200,8 +206,11 @@ class Estimate:
 
     @property
     def first_initialised(self) -> int:
-        """The index of the first sample after the estimator initialised: its covariance's
-        first finite row (NaN until then); 0 without a covariance, ``len(t)`` if it never did."""
+        """The index of the first sample after the estimator initialised: :attr:`init_index`
+        when recorded, else its covariance's first finite row (NaN until then); 0 without a
+        covariance, ``len(t)`` if it never did."""
+        if self.init_index is not None:
+            return self.init_index
         if self.cov is None or len(self.cov) == 0:
             return 0
         ok = np.isfinite(self.cov[:, 0, 0])
@@ -289,6 +298,8 @@ def save_estimate(est: Estimate, path: str | os.PathLike[str]) -> Path:
         f.attrs["filter"] = est.filter
         f.attrs["params"] = est.params
         f.attrs["state_labels"] = ",".join(est.state_labels)
+        if est.init_index is not None:
+            f.attrs["init_index"] = est.init_index
         for name in ("t", "q_nb", "gyro_bias_b", "v_n", "wind_n", "cov", "flags", "cov_index", "airspeed_scale"):
             v = getattr(est, name)
             if v is not None:
@@ -330,6 +341,7 @@ def load_estimate(path: str | os.PathLike[str]) -> Estimate:
             resets=_float_group(f, "resets"),
             alerts=_float_group(f, "alerts"),
             repairs=read_repairs(f),
+            init_index=int(f.attrs["init_index"]) if "init_index" in f.attrs else None,
             **arrays,
         )
 

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from windahrs.core.imu_screen import CLIP_F, CLIP_SAMPLES, CLIP_W
 from windahrs.core.layout import SENSOR_STREAMS, SENSORS
-from windahrs.drift import air_drift, mag_drift
+from windahrs.drift import air_drift, gnss_jump, mag_drift
 from windahrs.estimate import Estimate
 from windahrs.flight import Flight
 
@@ -70,13 +70,14 @@ FLAGS: dict[str, tuple[int, str]] = {
     "imu_stuck": (16, "gyro or accelerometer repeats its sample exactly (a hung sensor or bus)"),
     "mag_stuck": (17, "magnetometer repeats its sample exactly"),
     "air_stuck": (18, "airspeed or a vane repeats its value exactly (blocked pitot, stuck vane)"),
-    "imu_clipped": (19, "an IMU axis held at one large value (saturated)"),
+    "imu_clipped": (19, "an IMU axis held at one value (saturated, or the axis stuck)"),
     "imu_jitter": (20, "IMU sample step more than a quarter period off the median (stamps taken on receipt?)"),
     "stamps_repaired": (21, "a time stamp repaired at the edge: a repeated stamp dropped or a row out of order sorted"),
     "values_repaired": (22, "a sample set to NaN at the edge (infinite, or beyond the sensor's range)"),
     "mag_drift": (23, "magnetic field in the body drifting from what the attitude predicts (slow disturbance)"),
     "air_drift": (24, "airspeed changing unlike the GNSS velocity along the nose (a blocked or drifting pitot)"),
     "bias_large": (25, "gyro-bias estimate beyond 2 deg/s for 3 s (an attitude error absorbed into the bias?)"),
+    "gnss_jump": (26, "GNSS velocity changing unlike the IMU's acceleration (a jump, or a wrong attitude)"),
 }
 #: A sensor repeating its sample exactly for at least this long, s (and STUCK_SAMPLES samples),
 #: is stuck: the noise of MEMS inertial and magnetic sensors and of pitot and vane transducers
@@ -86,7 +87,11 @@ STUCK_SAMPLES = 5
 #: An IMU axis holding one magnitude of at least CLIP_MIN_W rad/s or CLIP_MIN_F m/s^2 for
 #: CLIP_SAMPLES samples in a row is clipped (core.imu_screen's constants): noise moves a live
 #: axis by converter steps at every sample, and only a clipped (or stuck) one holds a large
-#: value exactly.
+#: value exactly. An axis holding any one value for STUCK_S (and STUCK_SAMPLES samples) while
+#: the rest of the sensor moves is clipped too, at a range set below the motion, or stuck:
+#: the reason of STUCK_S, for one axis. On every recording of ../shared/data (BROAD at 286 Hz,
+#: PX4, ALFA, ANSFL) the longest such run of one axis is 10 samples, 0.032 s (a BROAD gyro
+#: axis at rest).
 CLIP_MIN_W = CLIP_W
 CLIP_MIN_F = CLIP_F
 #: An IMU step further than this share of the median period from it (and not a gap) is
@@ -217,15 +222,20 @@ def stream_flags(flight: Flight) -> dict[str, tuple[F64, NDArray[np.bool_]]]:
     stuck = np.zeros(len(imu.t), dtype=bool)
     clipped = np.zeros(len(imu.t), dtype=bool)
     for v, lo in ((imu.w_b, CLIP_MIN_W), (imu.f_b, CLIP_MIN_F)):
-        stuck |= _runs(_repeats(v), imu.t, STUCK_SAMPLES, STUCK_S)
+        whole = _repeats(v)
+        stuck |= _runs(whole, imu.t, STUCK_SAMPLES, STUCK_S)
         big = np.abs(v) >= lo
         for a in range(3):
-            if not big[:, a].any():
+            col = v[:, a]
+            held = np.zeros(len(col), dtype=bool)
+            held[1:] = (col[1:] == col[:-1]) & np.isfinite(col[1:])
+            if not held.any():
                 continue
-            col = np.abs(v[:, a])
-            same = np.zeros(len(col), dtype=bool)
-            same[1:] = (col[1:] == col[:-1]) & big[1:, a]
-            clipped |= _runs(same, imu.t, CLIP_SAMPLES, 0.0)
+            clipped |= _runs(held & ~whole, imu.t, STUCK_SAMPLES, STUCK_S)  # one axis, any value
+            if big[:, a].any():
+                same = np.zeros(len(col), dtype=bool)
+                same[1:] = (np.abs(col[1:]) == np.abs(col[:-1])) & big[1:, a]
+                clipped |= _runs(same, imu.t, CLIP_SAMPLES, 0.0)
     out["imu_stuck"], out["imu_clipped"] = (imu.t, stuck), (imu.t, clipped)
     jitter = np.zeros(len(imu.t), dtype=bool)
     if len(imu.t) > 2:
@@ -308,7 +318,11 @@ def estimate_flags(est: Estimate, flight: Flight) -> NDArray[np.uint32]:
         ta, on = air_drift(est, flight)
         if on.any():
             put("air_drift", _holding(ta, on, t, lims.get("air") or absent_after(ta)))
-    if est.cov is not None and len(t):  # (the covariance is NaN until initialisation)
+    if flight.gnss is not None:
+        tg, on = gnss_jump(est, flight)
+        if on.any():
+            put("gnss_jump", _points_within(tg[on], t, lims.get("gnss") or absent_after(tg)))
+    if (est.cov is not None or est.init_index is not None) and len(t):
         put("not_initialised", np.arange(len(t)) < est.first_initialised)
     return out
 

@@ -208,6 +208,7 @@ from windahrs.core.layout import (
     X_NWIN,
     X_Q,
     X_TIMU,
+    X_TINIT,
     X_TOK,
     X_TREST,
     X_TRFUSE,
@@ -275,9 +276,39 @@ def _try_init(cfg, prm, x, flags, P, work):
         return
     if cfg[C_WAIT_GNSS] == 1 and flags[S_FV] == 0:
         return
+    f0 = _initial_state(cfg, prm, x, flags, P, work)
+    if flags[S_FMAG] == 1:
+        _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
+    elif cfg[C_SITE_MAG] == 1:
+        _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
+    if prm[R_ACC_LP] > 0:
+        for a in range(3):
+            x[X_FBAR + a] = x[f0 + a]
+        for a in range(9):
+            x[X_JLAG + a] = 0.0
+        flags[S_FBAR] = 1
+    flags[S_WPEND] = 1 if (cfg[C_IW] >= 0 and cfg[C_INI_W] == 0) else 0
+    for s in range(N_SENSORS):  # every aid source's reset clock starts now
+        x[X_TOK + s] = x[X_TIMU]
+    flags[S_HEADLESS] = 1 if headless else 0
+    flags[S_INIT] = 1
+    x[X_TINIT] = x[X_TIMU]
+
+
+@njit(**_JIT_CORE)
+def _initial_state(cfg, prm, x, flags, P, work):
+    """The state and covariance the filter starts from if it initialises now (x and P
+    overwritten): the attitude by TRIAD from the specific force (the window's mean, or the
+    last sample) and the latest field (heading 0 without one), or the given initial state;
+    the biases zero or given; the velocity the last GNSS sample's (zero before one) or
+    given; the wind zero or given; the initial spreads. Returns the index in x of the
+    specific force used. :func:`_try_init` starts from it, and :func:`record` writes it
+    for the samples before the start (flagged not_initialised), so that no output is NaN."""
     f0 = X_FWIN if prm[R_INI_WIN] > 0 else X_FLAST  # the window's mean, or the last sample
     if cfg[C_INI] == 1:
         q = (prm[R_INI_Q], prm[R_INI_Q + 1], prm[R_INI_Q + 2], prm[R_INI_Q + 3])
+    elif flags[S_FLAST] == 0:  # no IMU sample yet (only NaN ones): level
+        q = (1.0, 0.0, 0.0, 0.0)
     else:
         q = _triad(
             x[f0], x[f0 + 1], x[f0 + 2],
@@ -309,21 +340,7 @@ def _try_init(cfg, prm, x, flags, P, work):
         if cfg[C_IBM] >= 0:
             P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm[R_P0_BM]
     set_attitude_cov(cfg, prm, x, P, work)
-    if flags[S_FMAG] == 1:
-        _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
-    elif cfg[C_SITE_MAG] == 1:
-        _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
-    if prm[R_ACC_LP] > 0:
-        for a in range(3):
-            x[X_FBAR + a] = x[f0 + a]
-        for a in range(9):
-            x[X_JLAG + a] = 0.0
-        flags[S_FBAR] = 1
-    flags[S_WPEND] = 1 if (iw >= 0 and cfg[C_INI_W] == 0) else 0
-    for s in range(N_SENSORS):  # every aid source's reset clock starts now
-        x[X_TOK + s] = x[X_TIMU]
-    flags[S_HEADLESS] = 1 if headless else 0
-    flags[S_INIT] = 1
+    return f0
 
 
 @njit(**_JIT_CORE)
@@ -534,34 +551,15 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
     covariance (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I)) into row k / e of out_cov
     (ceil(N / e), d, d) when k is a multiple of e = cfg[C_COV_EVERY]: its leading d x d
-    block for d = out_cov.shape[1], the whole (cfg[C_DIM]), the attitude's (3) or none (0)."""
+    block for d = out_cov.shape[1], the whole (cfg[C_DIM]), the attitude's (3) or none (0).
+    Before the filter starts, the state and covariance it would start from
+    (:func:`_initial_state`): the rows are finite, and flagged not_initialised."""
     d = out_cov.shape[1]
     iv, iw = cfg[C_IV], cfg[C_IW]
     e = cfg[C_COV_EVERY]
     kc = k // e if k % e == 0 else -1
-    if flags[S_INIT] == 0:
-        q = (1.0, 0.0, 0.0, 0.0)
-        if flags[S_WIN] == 1 and prm[R_INI_WIN] > 0:  # the window's mean so far, and the latest field
-            q = _triad(
-                x[X_FWIN], x[X_FWIN + 1], x[X_FWIN + 2],
-                flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
-                cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
-            )  # fmt: skip
-        elif flags[S_FLAST] == 1:  # the last sample's tilt
-            no = np.bool_(False)
-            q = _triad(x[X_FLAST], x[X_FLAST + 1], x[X_FLAST + 2], no, 0.0, 0.0, 0.0, no, 0.0, 0.0, 0.0)
-        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q
-        for a in range(3):
-            out_bg[k, a] = 0.0
-            if iv >= 0:
-                out_v[k, a] = np.nan
-            if iw >= 0:
-                out_w[k, a] = np.nan
-        if kc >= 0:
-            for i in range(d):
-                for j in range(d):
-                    out_cov[kc, i, j] = np.nan
-        return
+    if flags[S_INIT] == 0:  # the state it would start from now (x and P are free until then)
+        _initial_state(cfg, prm, x, flags, P, work)
     # (the covariance first, then the vectors, loaded before they are stored: measurably
     # faster code)
     if kc < 0:
@@ -851,6 +849,7 @@ def make_state(
     x = np.zeros(N_X)
     x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
     x[X_TREST], x[X_TRFUSE] = np.nan, -np.inf  # not at rest, never fused
+    x[X_TINIT] = np.nan  # not initialised
     return KernelState(
         cfg=cfg,
         prm=prm,
@@ -862,6 +861,13 @@ def make_state(
         inn=np.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),
     )
+
+
+def init_index(x: F64, t_imu: F64) -> int:
+    """The first IMU sample (index into t_imu) at which the filter with state x had started:
+    the one at its start time x[X_TINIT], ``len(t_imu)`` if it never did."""
+    t0 = x[X_TINIT]
+    return int(np.searchsorted(t_imu, t0)) if np.isfinite(t0) else len(t_imu)
 
 
 def _innovations(st: KernelState, mag_mode: str) -> dict[str, Innovations]:
@@ -1060,6 +1066,7 @@ class CompiledEstimator(Estimator):
             resets=_resets(st),
             alerts=read_held(st.cfg, st.flags, st.inn),
             airspeed_scale=read_airspeed_scale(st.cfg, st.flags, st.inn, st.acc),
+            init_index=init_index(st.x, flight.imu.t),
         ), flight)
 
     def streamer(

@@ -24,10 +24,14 @@ spans):
   ``out-of-order`` fall anywhere in the span.
 * ``nan_count``: the estimate's rows with a non-finite attitude, bias, velocity, wind or
   covariance.
+* ``no_effect``: the injected flight equals the clean one sample for sample (e.g. a gyro
+  clipped at a range the flight's motion never reaches): there is nothing to flag, and the
+  summary counts leave the row out (:func:`counts`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 import warnings
@@ -73,12 +77,15 @@ __all__ = [
     "DEFAULT_FAULT_FILTERS",
     "FLAG_WINDOW_S",
     "RECOVERY_ALLOWANCE_S",
+    "Counts",
     "FaultCase",
     "FaultRow",
+    "counts",
     "default_cases",
     "first_flag",
     "matrix_markdown",
     "run_fault_matrix",
+    "unchanged",
 ]
 
 F64 = NDArray[np.float64]
@@ -182,6 +189,7 @@ class FaultRow:
     flagged_span: bool = False
     span_flag_delay_s: float | None = None
     span_flag_source: str | None = None
+    no_effect: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """The row for JSON: non-finite numbers as None, times and angles to 1e-4."""
@@ -449,21 +457,66 @@ def run_fault_matrix(
                     progress(done, total, f"{case.name} not applicable")
                 continue
             faulty = _faulty_flight(flight, case, seed)
+            same = unchanged(flight, faulty)
             for spec, est in estimators:
                 if spec in clean:
                     out = est.run(faulty)
                     row = score_fault(out, clean[spec], flight, faulty, case, vehicle)
-                    res.rows.append(_relabel(row, spec))
+                    res.rows.append(_relabel(row, spec, same))
                 done += 1
                 if progress is not None:
                     progress(done, total, f"{case.name} {spec}")
     return res
 
 
-def _relabel(row: FaultRow, spec: str) -> FaultRow:
-    import dataclasses
+def _relabel(row: FaultRow, spec: str, no_effect: bool = False) -> FaultRow:
+    return dataclasses.replace(row, filter=spec, no_effect=no_effect)
 
-    return dataclasses.replace(row, filter=spec)
+
+def unchanged(flight: Flight, faulty: Flight) -> bool:
+    """Whether ``faulty`` has the same samples as ``flight`` in every sensor stream (times
+    and values, NaN equal to NaN): the fault changed nothing."""
+    for name in ("imu", "mag", "gnss", "air"):
+        a, b = getattr(flight, name), getattr(faulty, name)
+        if (a is None) != (b is None):
+            return False
+        if a is None:
+            continue
+        for f in dataclasses.fields(a):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+                if not (isinstance(x, np.ndarray) and isinstance(y, np.ndarray)):
+                    return False
+                if x.shape != y.shape or not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
+                    return False
+    return True
+
+
+@dataclass(frozen=True)
+class Counts:
+    """The matrix's summary against issue 13's acceptance, over the runs whose fault changed
+    the flight (``no_effect`` rows left out)."""
+
+    runs: int
+    no_effect: int
+    flagged: int
+    flagged_span: int
+    recovered: int
+    with_nan: int
+
+
+def counts(rows: Sequence[FaultRow]) -> Counts:
+    """:class:`Counts` of ``rows``: flagged within 1 s, within the span, back under twice the
+    pre-fault RMS within :data:`RECOVERY_ALLOWANCE_S`, with NaN rows."""
+    live = [r for r in rows if not r.no_effect]
+    return Counts(
+        runs=len(live),
+        no_effect=len(rows) - len(live),
+        flagged=sum(r.flagged for r in live),
+        flagged_span=sum(r.flagged_span for r in live),
+        recovered=sum(r.recover_s is not None and r.recover_s <= RECOVERY_ALLOWANCE_S for r in live),
+        with_nan=sum(r.nan_count > 0 for r in rows),
+    )
 
 
 def _cell(v: float | None, fmt: str = ".2f") -> str:
@@ -490,6 +543,8 @@ def matrix_markdown(results: Sequence[MatrixResult]) -> str:
             flag = f"{w.flag_source} ({w.flag_delay_s:.2f})" if w.flagged and w.flag_delay_s is not None else "no"
             if not w.flagged and w.flagged_span and w.span_flag_delay_s is not None:
                 flag = f"span: {w.span_flag_source} ({w.span_flag_delay_s:.2f})"
+            if w.no_effect:
+                flag = f"({flag}; the fault changed no sample)"
             lines.append(
                 f"| {w.fault} | {w.filter} | {w.nan_count} | {flag} | {_cell(w.rms_before_deg)} | "
                 f"{_cell(w.rms_during_deg)} | {_cell(w.max_during_deg)} | {_cell(w.rms_after_deg)} | "

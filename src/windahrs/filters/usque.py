@@ -57,6 +57,7 @@ from windahrs.core.kernel import (
     _rotate_lowpass,
     effective_mag_mode,
     imu_clock,
+    init_index,
     layout_for,
     mag_ready,
     make_state,
@@ -587,6 +588,7 @@ class Usque(Estimator):
             skipped={s: int(c) for s, c in zip(_STREAMS, skipped, strict=True)},
             params=self.params_text(),
             resets=_resets(st),
+            init_index=init_index(st.x, flight.imu.t),
         ), flight)
 
     def streamer(
