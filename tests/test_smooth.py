@@ -291,6 +291,16 @@ def test_method_choice_and_refusals() -> None:
         S.smooth(make_estimator("ins-wind"), flight, method="two-filter")
     with pytest.raises(ValueError, match=r"method: expected one of auto, two-filter, rts, found 'fb'"):
         S.smooth(make_estimator("mekf"), flight, method="fb")
+    # the method in a spec (the command line's way): smoother= implies smooth=true
+    rts = make_estimator("mekf-smooth:smoother=rts").run(flight)
+    tf = make_estimator("mekf:smoother=two-filter").run(flight)
+    assert rts.meta["smoother"] == "rts" and tf.meta["smoother"] == "two-filter"
+    assert rts.filter == "mekf-smooth:smoother=rts" and not np.array_equal(rts.q_nb, tf.q_nb)
+    np.testing.assert_array_equal(rts.q_nb, S.smooth(make_estimator("mekf"), flight, method="rts").q_nb)
+    with pytest.raises(ValueError, match=r"smoother: expected one of auto, two-filter, rts, found 'fb'"):
+        make_estimator("mekf:smoother=fb")
+    with pytest.raises(ValueError, match="smoothing 'ins-wind' by two filters"):
+        make_estimator("ins-wind:smoother=two-filter").run(flight)
 
 
 def test_two_filter_on_broad() -> None:

@@ -696,13 +696,16 @@ def forward_record(est: Any, flight: Flight, initial: InitialState | None = None
 class Smoothed(Estimator):
     """An estimator spec's smoothed form (``NAME-smooth`` or ``NAME:smooth=true``, see
     :func:`windahrs.filters.registry.make_estimator`): ``run`` is :func:`smooth` of the
-    inner estimator; offline only (no streamer)."""
+    inner estimator with ``method`` (``smoother=`` in a spec); offline only (no streamer)."""
 
-    def __init__(self, inner: Estimator, label: str | None = None) -> None:
+    def __init__(self, inner: Estimator, label: str | None = None, method: str = "auto") -> None:
         why = supports(inner)
         if why is not None:
             raise ValueError(why)
+        if method not in METHODS:
+            raise ValueError(f"smoothing: method: expected one of {', '.join(METHODS)}, found {method!r}")
         self.inner = inner
+        self.method = method
         self.name = smoothed_label(inner.name)  # type: ignore[misc]
         self.label = label if label is not None else smoothed_label(inner.label)
         self.requires = inner.requires  # type: ignore[misc]
@@ -712,7 +715,7 @@ class Smoothed(Estimator):
         """The smoothed form of the inner estimator with ``overrides`` on its parameters."""
         from windahrs.filters.registry import with_overrides
 
-        return Smoothed(with_overrides(self.inner, self.inner.name, dict(overrides)))
+        return Smoothed(with_overrides(self.inner, self.inner.name, dict(overrides)), method=self.method)
 
     def check(self, flight: Flight) -> None:
         self.inner.check(flight)
@@ -721,7 +724,7 @@ class Smoothed(Estimator):
         return self.inner.params_text()
 
     def run(self, flight: Flight, *, initial: InitialState | None = None) -> Estimate:
-        return smooth(self.inner, flight, initial=initial, label=self.label)
+        return smooth(self.inner, flight, initial=initial, label=self.label, method=self.method)
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()

@@ -102,7 +102,9 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
     field's components separated by ``/``, e.g. ``paper:wind=mean:mean_wind_n=3/-2/0``),
     with parameters from a TOML file first when given. ``NAME-smooth`` or ``smooth=true``: its
     offline smoother (:mod:`windahrs.core.smooth`; e.g. ``auto-smooth``,
-    ``mekf:mag_mode=heading:smooth=true``), ValueError for an estimator it cannot smooth.
+    ``mekf:mag_mode=heading:smooth=true``), ValueError for an estimator it cannot smooth;
+    ``smoother=two-filter`` or ``smoother=rts`` (implies ``smooth=true``) chooses the method,
+    ``auto`` by default (:func:`windahrs.core.smooth.smooth`).
 
     Unknown names raise ValueError listing the known ones; unknown fields name the field.
     """
@@ -116,6 +118,13 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
     smooth = overrides.pop("smooth", False)
     if not isinstance(smooth, bool):
         raise ValueError(f"filter {spec!r}: smooth: expected true or false, found {smooth!r}")
+    method = overrides.pop("smoother", None)
+    if method is not None:
+        from windahrs.core.smooth import METHODS
+
+        if method not in METHODS:
+            raise ValueError(f"filter {spec!r}: smoother: expected one of {', '.join(METHODS)}, found {method!r}")
+        smooth = True
     if name.endswith(SMOOTH_SUFFIX) and name not in REGISTRY:
         name, smooth = name[: -len(SMOOTH_SUFFIX)], True
     est = _build(name, params_file)
@@ -125,7 +134,7 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
     if smooth:
         from windahrs.core.smooth import Smoothed
 
-        return Smoothed(est, label=spec)
+        return Smoothed(est, label=spec, method=str(method or "auto"))
     if ":" in spec:
         est.label = spec
     return est
