@@ -348,11 +348,13 @@ def _window_add(x, flags, t, row):
 
 
 @njit(**_JIT_CORE)
-def _rotate_lowpass(cfg, prm, x, flags, wx, wy, wz, dt):
+def _rotate_lowpass(cfg, prm, x, flags, e, dt):
     """The low-passed vectors into the new body frame,
-    v <- C(Exp(w dt))^T v (w bias-corrected); with lowpass_bias, their bias sensitivities
-    too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`, :mod:`windahrs.aid.mag`)."""
-    c = _turn(wx, wy, wz, dt)
+    v <- C(e)^T v, e = Exp(w dt) the step's turn (w bias-corrected; the prediction's own,
+    :func:`windahrs.core.predict._predict_es` returns it); with lowpass_bias, their bias
+    sensitivities too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`,
+    :mod:`windahrs.aid.mag`)."""
+    c = _dcm9(e[0], e[1], e[2], e[3])
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
         if prm[R_LAGB] > 0:
@@ -377,6 +379,13 @@ def _turn(wx, wy, wz, dt):
     """C(Exp(w dt)), row-major: the body's turn over one IMU step at the rate w."""
     e = _qexp(wx * dt, wy * dt, wz * dt)
     return _dcm9(e[0], e[1], e[2], e[3])
+
+
+@njit(inline="always", **_JIT_CORE)
+def corrected_turn(x, row, dt):
+    """Exp((w - b_g) dt), the body's turn over one IMU step of dt s at the bias-corrected
+    rate of row = [w_b, ...] (what the error-state prediction turns the attitude by)."""
+    return _qexp((row[0] - x[X_BG]) * dt, (row[1] - x[X_BG + 1]) * dt, (row[2] - x[X_BG + 2]) * dt)
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -446,12 +455,16 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
-        if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
-            _rotate_lowpass(cfg, prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+        # (the low-passed means turn with the bias-corrected gyro as the attitude does: the
+        # error-state prediction's own turn, Exp((w - b_g) dt), computed once; the
+        # prediction does not change b_g)
         if cfg[C_ADD] == 1:
+            e = corrected_turn(x, row, dt)
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
-            _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
+            e = _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
+        if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
+            _rotate_lowpass(cfg, prm, x, flags, e, dt)
         if dt > prm[R_HOLD_DT]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
         if cfg[C_REST] != REST_OFF:  # the gyro's bias, when the vehicle is at rest

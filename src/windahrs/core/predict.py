@@ -102,7 +102,8 @@ def track_accel_noise(cfg, prm, x, dt):
 def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     """The error-state prediction (SPEC 2.4, 2.5), using Phi's block structure: only the attitude (and velocity)
     rows and columns of P change before Q is added (layout: att 0..2, v 3..5). The 3x3
-    blocks of Phi live in local scalars."""
+    blocks of Phi live in local scalars. Returns the step's turn Exp((w_m - b_g) dt) (the
+    kernel turns its low-passed means with it)."""
     n, ib, iv, iw, iba = cfg[C_N], cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
@@ -267,6 +268,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         P[iw, iw] += prm[R_WH2] * dt
         P[iw + 1, iw + 1] += prm[R_WH2] * dt
         P[iw + 2, iw + 2] += prm[R_WV2] * dt
+    return e
 
 
 @njit(**_JIT_CORE)

@@ -55,6 +55,7 @@ from windahrs.core.kernel import (
     _innovations,
     _resets,
     _rotate_lowpass,
+    corrected_turn,
     effective_mag_mode,
     imu_clock,
     layout_for,
@@ -373,7 +374,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
     fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
         if flags[S_FBAR] == 1:
-            _rotate_lowpass(cfg, prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+            _rotate_lowpass(cfg, prm, x, flags, corrected_turn(x, row, dt), dt)
         _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
         if cfg[C_AVAR] >= 1:
             track_accel_noise(cfg, prm, x, dt)
