@@ -52,7 +52,7 @@ from windahrs.core.layout import (
 )
 from windahrs.core.quat import (
     _dcm9,
-    _qexp,
+    _qexp_half,
     _qmul,
     _qnormalize,
     _sinc,
@@ -107,7 +107,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     n, ib, iv, iw, iba = cfg[C_N], cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
-    e = _qexp(wx * dt, wy * dt, wz * dt)
+    e, sh = _qexp_half(wx * dt, wy * dt, wz * dt)
     q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
     # the attitude transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
@@ -116,10 +116,10 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     if a * dt < 1e-6:  # the series (the closed form loses precision)
         c11, c12 = -dt, 0.5 * dt**2
         c21, c22 = 0.5 * dt**2, -(dt**3) / 6.0
-    else:
-        s, c = math.sin(a * dt), math.cos(a * dt)
-        c11, c12 = -s / a, (1 - c) / a**2
-        c21, c22 = (1 - c) / a**2, -(a * dt - s) / a**3
+    else:  # sin(a dt) and 1 - cos(a dt) from the turn's half angle (sh, e[0] = its cosine)
+        s, omc = 2.0 * sh * e[0], 2.0 * sh * sh
+        c11, c12 = -s / a, omc / a**2
+        c21, c22 = omc / a**2, -(a * dt - s) / a**3
     xy, xz, yz = wy * wx, wz * wx, wz * wy
     s00, s11, s22 = -(wz * wz) - wy * wy, -(wz * wz) - wx * wx, -(wy * wy) - wx * wx
     p00, p01, p02 = 1.0 + c12 * s00, c11 * -wz + c12 * xy, c11 * wy + c12 * xz
