@@ -18,8 +18,6 @@ reads it back as Estimate innovations (:func:`read_logs`).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -181,13 +179,6 @@ def read_airspeed_scale(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) 
     if c == 0:
         return None
     return np.column_stack([inn[o : o + c, :4], acc[o : o + c].astype(np.float64)])
-
-
-@njit(**_JIT_CORE)
-def _lowpass_gain(dt, tau):
-    """Weight of a new sample in a first-order low-pass after dt."""
-    return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
-
 
 
 @njit(**_JIT_CORE)

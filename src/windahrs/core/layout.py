@@ -242,7 +242,13 @@ X_JLAG = X_AVAR + 33  # (9,) row-major: how a gyro-bias error moves the low-pass
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
 X_NGAIN = X_AVAR + 42  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
 X_JMAG = X_AVAR + 44  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
-N_X = X_AVAR + 53
+#: (2,) each: the last step dt s of a low-pass at the IMU's (or magnetometer's) rate and its
+#: gain (core.predict.steady_gain): the gravity aid's mean, the INS's mean specific force
+#: (aid.gnss_vel), the magnetometer's mean
+X_FGAIN = X_AVAR + 53
+X_LGAIN = X_AVAR + 55
+X_MGAIN = X_AVAR + 57
+N_X = X_AVAR + 59
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

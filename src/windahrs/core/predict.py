@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from windahrs.core.layout import (
@@ -75,6 +76,22 @@ NOISE_TAU = 3.0
 WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")
 
 
+@njit(**_JIT_CORE)
+def _lowpass_gain(dt, tau):
+    """Weight of a new sample in a first-order low-pass after dt."""
+    return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
+
+
+@njit(inline="always", **_JIT_CORE)
+def steady_gain(x, i, dt, tau):
+    """:func:`_lowpass_gain` (dt, tau) of a low-pass whose tau is fixed for the run, remembered
+    with its step in x[i:i+2] (dt, gain): at a steady sample rate the exponential once. A
+    fresh state (zeros) holds the gain of dt = 0, which is 0."""
+    if dt != x[i]:
+        x[i], x[i + 1] = dt, _lowpass_gain(dt, tau)
+    return x[i + 1]
+
+
 @njit(inline="always", **_JIT_CORE)
 def track_accel_noise(cfg, prm, x, dt):
     """The accelerometer's noise on line, from the differences of consecutive samples
@@ -86,12 +103,7 @@ def track_accel_noise(cfg, prm, x, dt):
     the first seconds are weighed by the noise measured, not by a variance growing from zero.
     Read by the gravity aid source (its R) and the INS's prediction (its input's density)."""
     d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
-    if dt == x[X_NGAIN]:  # (a steady IMU rate: the exponential once)
-        gain = x[X_NGAIN + 1]
-    else:
-        tau = prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU
-        gain = 1.0 - math.exp(-dt / tau)
-        x[X_NGAIN], x[X_NGAIN + 1] = dt, gain
+    gain = steady_gain(x, np.int64(X_NGAIN), dt, prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU)
     if cfg[C_AVAR] == 2:
         x[X_NAVAR] += 1.0
         gain = max(gain, 1.0 / x[X_NAVAR])

@@ -46,7 +46,7 @@ from windahrs.aid.mag import heading_reset, mag_reference, measured_heading
 from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
 from windahrs.core.events import sample_ok
-from windahrs.core.kalman import _gate, _log, _lowpass_gain
+from windahrs.core.kalman import _gate, _log
 from windahrs.core.kernel import (
     _STREAMS,
     CompiledStreamer,
@@ -91,7 +91,7 @@ from windahrs.core.layout import (
     X_Q,
     KernelState,
 )
-from windahrs.core.predict import track_accel_noise
+from windahrs.core.predict import _lowpass_gain, track_accel_noise
 from windahrs.core.quat import (
     _dcm9,
     _euler,
