@@ -56,6 +56,7 @@ from windahrs.aid.sideslip import (
 from windahrs.aid.tas import (
     fuse_tas,
 )
+from windahrs.core import pool
 from windahrs.core.events import sample_ok
 from windahrs.core.imu_screen import screen_imu
 from windahrs.core.kalman import grown_logs, log_layout, read_airspeed_scale, read_held, read_logs, read_resets
@@ -872,7 +873,7 @@ def make_state(
         P=np.zeros((n_pad, n_pad)),
         work=np.zeros((N_WORK, max(n_pad, NMAX))),  # (scratch rows span P's columns)
         sup=np.zeros((2, NMAX), dtype=np.int64),
-        inn=np.empty((total, 5)),
+        inn=pool.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),
     )
 
@@ -1043,12 +1044,13 @@ class CompiledEstimator(Estimator):
         st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
         L = layout_for(self.kind, params, additive=self.additive)
         N, d = len(flight.imu.t), {"full": L.dim, "attitude": 3, "none": 0}[cov]
-        q, bg = np.empty((N, 4)), np.empty((N, 3))
-        v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
-        w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
+        # (the outputs in reused memory, core.pool: no page faults when an Estimate was dropped)
+        q, bg = pool.empty((N, 4)), pool.empty((N, 3))
+        v = pool.empty((N, 3)) if L.has("v") else np.empty((0, 3))
+        w = pool.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
         every = cov_stride(N, d, cov_every)
         st.cfg[C_COV_EVERY] = every
-        P = np.empty((-(-N // every), d, d))
+        P = pool.empty((-(-N // every), d, d))
         return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)
 
     def finish(self, run: PreparedRun) -> Estimate:

@@ -1,0 +1,60 @@
+"""Memory reused for the large outputs of compiled runs (the recorded states and covariances,
+the innovation logs).
+
+Each run records into fresh arrays that its Estimate then owns. When a program drops one
+Estimate and runs again (a sweep that keeps a metric, a benchmark), glibc has handed the
+freed megabytes back to the kernel, and the next run takes a page fault on the first touch
+of every 4 kB page: 1175 per 60 s run of [mekf], about 0.2 us per IMU sample on this VM,
+a fifth of the whole run (docs/core.md, "No reference counting in the per-sample core").
+:func:`empty` hands out an array whose memory is a block of its own, owned by a small
+object (:class:`_Block`); when the last view of it is gone, the block goes to a free list
+instead of back to glibc, and the next request of the same size takes it, its pages
+already mapped. Nothing else changes: the arrays are uninitialised as ``np.empty``'s,
+each has its own block (keeping one array keeps no other alive), and a block is reused only
+once nothing refers to it. The free list keeps at most :data:`POOL_BYTES`; lists and dicts
+are changed by single operations (atomic under the GIL), so any thread may free a block.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Free memory kept for reuse at most, bytes (256 MiB: the outputs of a few long runs).
+POOL_BYTES = 1 << 28
+#: Smaller arrays come from numpy as usual (glibc reuses small blocks itself).
+MIN_BYTES = 1 << 18
+
+_free: dict[int, list[NDArray[np.uint8]]] = {}
+
+
+class _Block:
+    """The owner of a block of memory that numpy views (its ``__array_interface__``); back to
+    the free list when the last view is gone."""
+
+    def __init__(self, mem: NDArray[np.uint8]) -> None:
+        self.mem = mem
+        self.__array_interface__ = mem.__array_interface__
+
+    def __del__(self) -> None:
+        free = _free  # (None once the interpreter is tearing the module down)
+        if free is None:
+            return
+        n = self.mem.nbytes
+        if sum(m.nbytes for same in list(free.values()) for m in list(same)) + n <= POOL_BYTES:
+            free.setdefault(n, []).append(self.mem)
+
+
+def empty(shape: tuple[int, ...]) -> NDArray[np.float64]:
+    """``np.empty(shape)`` (float64), its memory reused from a freed array of the same size
+    when there is one (see the module)."""
+    n = math.prod(shape) * 8
+    if n < MIN_BYTES:
+        return np.empty(shape)
+    try:
+        mem = _free.get(n, []).pop()
+    except IndexError:
+        mem = np.empty(n, np.uint8)
+    return np.asarray(_Block(mem)).view(np.float64).reshape(shape)
