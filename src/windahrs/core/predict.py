@@ -140,9 +140,9 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     r00, r01, r02 = -dt + c22 * s00, c21 * -wz + c22 * xy, c21 * wy + c22 * xz
     r10, r11, r12 = c21 * wz + c22 * xy, -dt + c22 * s11, c21 * -wx + c22 * yz
     r20, r21, r22 = c21 * -wy + c22 * xz, c21 * wx + c22 * yz, -dt + c22 * s22
-    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], whole padded rows. One
+    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], the n columns. One
     # output row per loop keeps LLVM's runtime alias checks few enough to vectorise.
-    for j in range(P.shape[1]):
+    for j in range(n):
         M[0, j] = (
             p00 * P[0, j]
             + p01 * P[1, j]
@@ -151,7 +151,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r01 * P[ib + 1, j]
             + (r02 * P[ib + 2, j])
         )
-    for j in range(P.shape[1]):
+    for j in range(n):
         M[1, j] = (
             p10 * P[0, j]
             + p11 * P[1, j]
@@ -160,7 +160,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r11 * P[ib + 1, j]
             + (r12 * P[ib + 2, j])
         )
-    for j in range(P.shape[1]):
+    for j in range(n):
         M[2, j] = (
             p20 * P[0, j]
             + p21 * P[1, j]
@@ -201,26 +201,26 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         d20, d21, d22 = -C[6] * dt, -C[7] * dt, -C[8] * dt
         # M[3:6] = velocity rows of Phi P = P[v] + CF M[0:3] (+ Cdt P[ba])
         if iba >= 0:
-            for j in range(P.shape[1]):
+            for j in range(n):
                 M[3, j] = (
                     P[iv, j]
                     + (f00 * M[0, j] + f01 * M[1, j] + f02 * M[2, j])
                     + (d00 * P[iba, j] + d01 * P[iba + 1, j] + d02 * P[iba + 2, j])
                 )
-            for j in range(P.shape[1]):
+            for j in range(n):
                 M[4, j] = (
                     P[iv + 1, j]
                     + (f10 * M[0, j] + f11 * M[1, j] + f12 * M[2, j])
                     + (d10 * P[iba, j] + d11 * P[iba + 1, j] + d12 * P[iba + 2, j])
                 )
-            for j in range(P.shape[1]):
+            for j in range(n):
                 M[5, j] = (
                     P[iv + 2, j]
                     + (f20 * M[0, j] + f21 * M[1, j] + f22 * M[2, j])
                     + (d20 * P[iba, j] + d21 * P[iba + 1, j] + d22 * P[iba + 2, j])
                 )
         else:
-            for j in range(P.shape[1]):
+            for j in range(n):
                 m0, m1, m2 = M[0, j], M[1, j], M[2, j]
                 M[3, j] = P[iv, j] + (f00 * m0 + f01 * m1 + f02 * m2)
                 M[4, j] = P[iv + 1, j] + (f10 * m0 + f11 * m1 + f12 * m2)
