@@ -234,11 +234,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     correction to the quaternion's parameters and normalise (``_normalise_add``).
     Returns whether the update was accepted.
 
-    Every entry of U = H P is summed in a register (the support's columns in their order),
-    and the covariance update is evaluated on one triangle and mirrored: each entry adds
-    K_ik G_jk + G_ik K_jk, which is its mirror's sum with the terms swapped, so this is
-    what updating both entries gave, bit for bit, for half the work (P stays exactly
-    symmetric). Loops run over the n states, not P's zero padding."""
+    Every entry of U = H P is summed in a register (the support's columns in their order).
+    The covariance update of up to TRIANGLE_N states is evaluated on one triangle and
+    mirrored (each entry adds K_ik G_jk + G_ik K_jk, its mirror's sum with the terms
+    swapped: what updating both gave, for half the work), of more on whole rows, which the
+    compiler vectorises; either way P stays exactly symmetric. Loops run over the n states,
+    not P's zero padding."""
     n = cfg[C_N]
     H, sup = work[W_H : W_H + 3], sups[0]
     Hm, cols, nc = H, sup, nsup
@@ -303,7 +304,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     if not _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
         return False
     # K^T = S^-1 H P; Joseph form expanded: P - K U^T - U K^T + K S K^T = P + K G^T + G K^T
-    # with G = K S / 2 - U^T, on the upper triangle, mirrored.
+    # with G = K S / 2 - U^T.
     if m == 3:
         i00, i01, i02, i10, i11, i12 = Si[0, 0], Si[0, 1], Si[0, 2], Si[1, 0], Si[1, 1], Si[1, 2]
         i20, i21, i22 = Si[2, 0], Si[2, 1], Si[2, 2]
@@ -324,12 +325,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             _tilt_only(x, Kt, Gt, dx, S, U, nu)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
-            for j in range(i, n):
-                v = ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
-                    a2 * Gt[2, j] + b2 * Kt[2, j]
-                )
-                P[i, j] = v
-                P[j, i] = v
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = _joseph3(P, Kt, Gt, i, j, a0, b0, a1, b1, a2, b2)
+            else:
+                for j in range(n):
+                    P[i, j] = _joseph3(P, Kt, Gt, i, j, a0, b0, a1, b1, a2, b2)
     elif m == 2:
         i00, i01, i10, i11 = Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1]
         s00, s01, s10, s11 = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
@@ -344,10 +345,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1) - u1
         for i in range(n):
             a0, b0, a1, b1 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i]
-            for j in range(i, n):
-                v = (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
-                P[i, j] = v
-                P[j, i] = v
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = _joseph2(P, Kt, Gt, i, j, a0, b0, a1, b1)
+            else:
+                for j in range(n):
+                    P[i, j] = _joseph2(P, Kt, Gt, i, j, a0, b0, a1, b1)
     else:
         i00, s00, n0 = Si[0, 0], S[0, 0], nu[0]
         for j in range(n):
@@ -357,10 +360,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[0, j] = 0.5 * (s00 * k0) - U[0, j]
         for i in range(n):
             a0, b0 = Kt[0, i], Gt[0, i]
-            for j in range(i, n):
-                v = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
-                P[i, j] = v
-                P[j, i] = v
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
+            else:
+                for j in range(n):
+                    P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     if cfg[C_ADD] != ADD_NONE:
         if ib >= 0:
@@ -395,6 +400,27 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             if cfg[C_IBM] >= 0:
                 x[X_BM + a] += dx[cfg[C_IBM] + a]
     return True
+
+
+#: Covariances up to this size are updated on one triangle, mirrored (scalar code, half the
+#: entries: [mekf]'s 6 states); larger ones on whole rows, which the compiler vectorises
+#: ([ins-wind]'s 15: the triangle's rows of varying length were 20 % slower there).
+TRIANGLE_N = 8
+
+
+@njit(inline="always", **_JIT_CORE)
+def _joseph3(P, Kt, Gt, i, j, a0, b0, a1, b1, a2, b2):
+    """Entry (i, j) of P + K G^T + G K^T for 3 rows (a_k = K_ik, b_k = G_ik): it adds
+    K_ik G_jk + G_ik K_jk, its mirror's sum with the terms swapped, so both are equal."""
+    return ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
+        a2 * Gt[2, j] + b2 * Kt[2, j]
+    )
+
+
+@njit(inline="always", **_JIT_CORE)
+def _joseph2(P, Kt, Gt, i, j, a0, b0, a1, b1):
+    """:func:`_joseph3` for 2 rows."""
+    return (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
 
 
 @njit(inline="always", **_JIT_CORE)
