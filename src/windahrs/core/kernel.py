@@ -873,7 +873,7 @@ def make_state(
         P=np.zeros((n_pad, n_pad)),
         work=np.zeros((N_WORK, max(n_pad, NMAX))),  # (scratch rows span P's columns)
         sup=np.zeros((2, NMAX), dtype=np.int64),
-        inn=pool.empty((total, 5)),
+        inn=np.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),
     )
 
@@ -1028,11 +1028,16 @@ class CompiledEstimator(Estimator):
         initial: InitialState | None = None,
         cov: CovRecord = "full",
         cov_every: int | None = None,
+        *,
+        reuse: bool = True,
     ) -> PreparedRun:
         """What :func:`run_events` needs to run ``flight``: a fresh state, the merged events
         and the outputs (uninitialised), in a :class:`PreparedRun`; cov: the covariance to
         record (:data:`~windahrs.filters.base.CovRecord`), at every cov_every-th IMU sample
-        (as :meth:`run`'s, from the recorded block's size)."""
+        (as :meth:`run`'s, from the recorded block's size); reuse: the outputs and the
+        innovation logs in memory reused from dropped Estimates (:mod:`windahrs.core.pool`:
+        no page faults on their first touch), False for fresh arrays (a caller that
+        replaces them unwritten, as the batch does)."""
         if cov not in COV_RECORDS:
             raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
         self.check(flight)
@@ -1042,15 +1047,17 @@ class CompiledEstimator(Estimator):
         counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
         caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
         st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
+        new = pool.empty if reuse else np.empty
+        if reuse:
+            st = st._replace(inn=new(st.inn.shape))
         L = layout_for(self.kind, params, additive=self.additive)
         N, d = len(flight.imu.t), {"full": L.dim, "attitude": 3, "none": 0}[cov]
-        # (the outputs in reused memory, core.pool: no page faults when an Estimate was dropped)
-        q, bg = pool.empty((N, 4)), pool.empty((N, 3))
-        v = pool.empty((N, 3)) if L.has("v") else np.empty((0, 3))
-        w = pool.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
+        q, bg = new((N, 4)), new((N, 3))
+        v = new((N, 3)) if L.has("v") else np.empty((0, 3))
+        w = new((N, 3)) if L.has("wind") else np.empty((0, 3))
         every = cov_stride(N, d, cov_every)
         st.cfg[C_COV_EVERY] = every
-        P = pool.empty((-(-N // every), d, d))
+        P = new((-(-N // every), d, d))
         return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)
 
     def finish(self, run: PreparedRun) -> Estimate:
