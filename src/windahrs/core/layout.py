@@ -4,8 +4,9 @@ between events, as flat arrays named by the index constants below, and the senso
 
 :class:`KernelState` holds nine arrays: the configuration (ints) and parameters (floats)
 encoded once from the estimator's parameters, the nominal state with the samples it
-remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes, the inner
-loops running over whole padded rows), scratch space and the innovation logs. Helpers take
+remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes: the
+additive filters' loops run over whole padded rows, the error-state update and prediction
+over the n states), scratch space and the innovation logs. Helpers take
 the arrays they need, not the KernelState: numba reference-counts every array taken out of a tuple.
 """
 
