@@ -220,6 +220,7 @@ from windahrs.core.layout import (
     KernelState,
     cov_stride,
 )
+from windahrs.core.pool import stream_fence, stream_store3
 from windahrs.core.predict import (
     _predict_add,
     _predict_es,
@@ -580,10 +581,10 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     # faster code)
     if kc < 0:
         pass
-    elif cfg[C_ADD] == 0:
+    elif cfg[C_ADD] == 0:  # (around the caches, core.pool.stream_store3: never read back here)
         for i in range(d):
             for j in range(d):
-                out_cov[kc, i, j] = P[i, j]
+                stream_store3(out_cov, kc, i, j, P[i, j])
     else:
         _record_tangent_cov(cfg, x, P, work, kc, out_cov)
     q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
@@ -663,6 +664,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
             record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
             if sm is not None:
                 record_post(sm, k, cfg, x, flags, P)
+    if rec:  # (the covariance was recorded around the caches: visible to every thread now)
+        stream_fence()
 
 
 # --- Python side: encoding, estimators, streamer -------------------------------------------

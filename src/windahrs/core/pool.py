@@ -20,6 +20,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.core.extending import intrinsic, overload
 from numpy.typing import NDArray
 
 #: Free memory kept for reuse at most, bytes (256 MiB: the outputs of a few long runs).
@@ -58,3 +62,56 @@ def empty(shape: tuple[int, ...]) -> NDArray[np.float64]:
     except IndexError:
         mem = np.empty(n, np.uint8)
     return np.asarray(_Block(mem)).view(np.float64).reshape(shape)
+
+
+def stream_store3(arr: NDArray[np.float64], i: int, j: int, k: int, val: float) -> None:
+    """``arr[i, j, k] = val``; compiled, a non-temporal store (LLVM's ``!nontemporal``,
+    :func:`_store_nt3`): written around the caches, for the covariance the kernel records at
+    every sample and never reads back (an [ins-wind] sample's 1.8 kB evicted the filter's own
+    working set; docs/core.md). This plain form runs with ``NUMBA_DISABLE_JIT=1``."""
+    arr[i, j, k] = val
+
+
+def stream_fence() -> None:
+    """A full memory fence once compiled (``mfence`` on x86, :func:`_fence`): the
+    non-temporal stores before it are visible to every thread after it (e.g. the one that
+    reads a batch's outputs once its parallel loop has joined); nothing in plain Python."""
+
+
+@intrinsic
+def _store_nt3(typingctx, arr, i, j, k, val):
+    """:func:`stream_store3` compiled: the store, marked non-temporal, no bounds check (as
+    numba's indexing by default)."""
+    sig = types.void(arr, i, j, k, val)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, list(args[1:4]), wraparound=False)
+        store = builder.store(args[4], ptr)
+        store.set_metadata("nontemporal", builder.module.add_metadata([ir.IntType(32)(1)]))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _fence(typingctx):
+    """:func:`stream_fence` compiled."""
+    sig = types.void()
+
+    def codegen(context, builder, signature, args):
+        builder.fence("seq_cst")
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@overload(stream_store3, inline="always")
+def _stream_store3_compiled(arr, i, j, k, val):
+    return lambda arr, i, j, k, val: _store_nt3(arr, i, j, k, val)  # type: ignore[call-arg]
+
+
+@overload(stream_fence, inline="always")
+def _stream_fence_compiled():
+    return lambda: _fence()  # type: ignore[call-arg]
