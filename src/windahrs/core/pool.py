@@ -13,6 +13,10 @@ already mapped. Nothing else changes: the arrays are uninitialised as ``np.empty
 each has its own block (keeping one array keeps no other alive), and a block is reused only
 once nothing refers to it. The free list keeps at most :data:`POOL_BYTES`; lists and dicts
 are changed by single operations (atomic under the GIL), so any thread may free a block.
+
+Also here: :func:`stream_store3` and :func:`stream_fence`, with which the kernel records the
+covariance around the caches (non-temporal stores; plain Python forms for
+``NUMBA_DISABLE_JIT``).
 """
 
 from __future__ import annotations
