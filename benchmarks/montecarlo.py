@@ -65,7 +65,7 @@ def kernel_timer(est: Any, flights: list[Any], threads: int, cov: str) -> Timer:
     from windahrs.core import batch
 
     def timer() -> tuple[float, float]:
-        packed, runs = batch._pack([est.prepare(f, None, cov) for f in flights])
+        packed, runs = batch._pack([est.prepare(f, None, cov, reuse=False) for f in flights])
         order = np.arange(len(runs), dtype=np.int64)
         before = numba.get_num_threads()
         try:

@@ -42,7 +42,6 @@ from numba import njit
 
 from windahrs.core.kalman import (
     _fuse,
-    _lowpass_gain,
 )
 from windahrs.core.layout import (
     _JIT_CORE,
@@ -77,10 +76,12 @@ from windahrs.core.layout import (
     X_BA,
     X_BM,
     X_FBAR,
+    X_LGAIN,
     X_TGNSS,
     X_V,
     X_VGNSS,
 )
+from windahrs.core.predict import _lowpass_gain, steady_gain
 from windahrs.core.reset import (
     accepted_at,
     level_to,
@@ -161,7 +162,7 @@ def remember_specific_force(x, flags, fx, fy, fz, dt):
         x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2] = fx, fy, fz
         flags[S_FBAR] = 1
         return
-    k = _lowpass_gain(dt, LEVEL_TAU)
+    k = steady_gain(x, np.int64(X_LGAIN), dt, LEVEL_TAU)
     x[X_FBAR] = x[X_FBAR] + k * (fx - x[X_FBAR])
     x[X_FBAR + 1] = x[X_FBAR + 1] + k * (fy - x[X_FBAR + 1])
     x[X_FBAR + 2] = x[X_FBAR + 2] + k * (fz - x[X_FBAR + 2])

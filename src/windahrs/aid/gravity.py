@@ -27,7 +27,6 @@ from windahrs.core.kalman import (
     _bias_rows,
     _fuse,
     _log,
-    _lowpass_gain,
     _vector_rows,
     lag_age,
     lag_bias_rows,
@@ -58,11 +57,12 @@ from windahrs.core.layout import (
     X_BA,
     X_BG,
     X_FBAR,
+    X_FGAIN,
     X_JLAG,
     X_Q,
     X_VAIR,
 )
-from windahrs.core.predict import track_accel_noise
+from windahrs.core.predict import steady_gain, track_accel_noise
 from windahrs.core.quat import (
     _dcm9,
 )
@@ -169,7 +169,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     # turn's force, turning in the gyro-compensated frame, averages out of it (knows_gravity)
     f_now = math.sqrt((fx - k0) ** 2 + (fy - k1) ** 2 + (fz - k2) ** 2)
     if flags[S_FBAR] == 1:  # the mean of the compensated specific force, no compensation after
-        a = _lowpass_gain(dt, prm[R_ACC_LP])
+        a = steady_gain(x, np.int64(X_FGAIN), dt, prm[R_ACC_LP])
         if has_k:
             fx, fy, fz = fx - k0, fy - k1, fz - k2
         fx, fy, fz = blend_mean(prm, x, a, fx, fy, fz)

@@ -25,7 +25,6 @@ from windahrs.core.kalman import (
     _bias_rows,
     _fuse,
     _log,
-    _lowpass_gain,
     _vector_rows,
     lag_age,
     lag_bias_rows,
@@ -62,9 +61,13 @@ from windahrs.core.layout import (
     X_JMAG,
     X_MAGN,
     X_MBAR,
+    X_MGAIN,
     X_Q,
     X_TMBAR,
     X_TOK,
+)
+from windahrs.core.predict import (
+    steady_gain,
 )
 from windahrs.core.quat import (
     _dcm9,
@@ -176,7 +179,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             lag_age(x, np.int64(X_JMAG), 1.0)
             flags[S_MBAR] = 1
         else:
-            a = _lowpass_gain(t - x[X_TMBAR], prm[R_MAG_LP])
+            a = steady_gain(x, np.int64(X_MGAIN), t - x[X_TMBAR], prm[R_MAG_LP])
             x[X_MBAR] = x[X_MBAR] + a * (mx - x[X_MBAR])
             x[X_MBAR + 1] = x[X_MBAR + 1] + a * (my - x[X_MBAR + 1])
             x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])

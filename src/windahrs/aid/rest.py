@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from windahrs.core.kalman import _bias_rows, _fuse, _lowpass_gain
+from windahrs.core.kalman import _bias_rows, _fuse
 from windahrs.core.layout import (
     _JIT_CORE,
     C_IBG,
@@ -55,6 +55,7 @@ from windahrs.core.layout import (
     X_TREST,
     X_TRFUSE,
 )
+from windahrs.core.predict import _lowpass_gain
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = (

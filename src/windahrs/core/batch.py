@@ -42,6 +42,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from windahrs.core import pool
 from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
 from windahrs.core.layout import _JIT, C_OFF, I64, L_CNT, N_SENSORS, KernelState
 from windahrs.estimate import Estimate
@@ -117,7 +118,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     # the logs: the rows logged so far (none in a fresh state) copied, the rest left
     # unwritten (kalman._log writes a row before anything reads it): a log has room for
     # every sample of its stream, megabytes per flight that a copy would touch for nothing
-    inn = np.empty((int(l_off[-1]), 5))
+    inn = pool.empty((int(l_off[-1]), 5))
     acc = np.zeros(int(l_off[-1]), dtype=np.bool_)
     for i, s in enumerate(sts):
         for k in range(N_SENSORS):
@@ -130,13 +131,13 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     vals = np.concatenate([r.vals for r in runs])
     n_off = _offsets([len(r.q) for r in runs])
     N = int(n_off[-1])
-    q, bg = np.empty((N, 4)), np.empty((N, 3))
-    v = np.empty((N if len(runs[0].v) else 0, 3))
-    w = np.empty((N if len(runs[0].w) else 0, 3))
+    q, bg = pool.empty((N, 4)), pool.empty((N, 3))
+    v = pool.empty((N if len(runs[0].v) else 0, 3))
+    w = pool.empty((N if len(runs[0].w) else 0, 3))
     dims = np.array([r.cov.shape[1] for r in runs], dtype=np.int64)
     c_rows = np.array([r.cov.shape[0] for r in runs], dtype=np.int64)
     c_off = _offsets([r.cov.size for r in runs])
-    cov = np.empty(int(c_off[-1]))
+    cov = pool.empty((int(c_off[-1]),))
     views = []
     for i, r in enumerate(runs):
         n0, n1 = int(n_off[i]), int(n_off[i + 1])
@@ -200,12 +201,12 @@ def run_batch(
     by_length = sorted(range(len(flights)), key=lambda i: -len(flights[i].imu.t))
     size = chunk_size(len(flights), n_threads)
     out: list[Estimate | None] = [None] * len(flights)
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as pool:
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as helper:
         pending: tuple[Future[None], list[PreparedRun], list[int]] | None = None
         for c0 in range(0, len(flights), size):
             chunk = by_length[c0 : c0 + size]
-            args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every) for i in chunk])
-            running = pool.submit(_launch, args, n_threads)  # starts when the previous chunk is done
+            args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every, reuse=False) for i in chunk])
+            running = helper.submit(_launch, args, n_threads)  # starts when the previous chunk is done
             if pending is not None:
                 _collect(est, pending, out)
             pending = (running, runs, chunk)

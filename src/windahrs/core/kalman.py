@@ -18,8 +18,6 @@ reads it back as Estimate innovations (:func:`read_logs`).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -184,13 +182,6 @@ def read_airspeed_scale(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) 
 
 
 @njit(**_JIT_CORE)
-def _lowpass_gain(dt, tau):
-    """Weight of a new sample in a first-order low-pass after dt."""
-    return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
-
-
-
-@njit(**_JIT_CORE)
 def _inverse_small(S, Si, m):
     """Si = S^-1 for m = 1, 2 or 3 (cofactors; S is a well-conditioned innovation covariance)."""
     if m == 1:
@@ -243,8 +234,12 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     correction to the quaternion's parameters and normalise (``_normalise_add``).
     Returns whether the update was accepted.
 
-    Loops run over whole padded rows of P (whole SIMD lanes) with every row of the
-    measurement in one pass, which lets the compiler vectorise them."""
+    Every entry of U = H P is summed in a register (the support's columns in their order).
+    The covariance update of up to TRIANGLE_N states is evaluated on one triangle and
+    mirrored (each entry adds K_ik G_jk + G_ik K_jk, its mirror's sum with the terms
+    swapped: what updating both gave, for half the work), of more on whole rows, which the
+    compiler vectorises; either way P stays exactly symmetric. Loops run over the n states,
+    not P's zero padding."""
     n = cfg[C_N]
     H, sup = work[W_H : W_H + 3], sups[0]
     Hm, cols, nc = H, sup, nsup
@@ -274,29 +269,31 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
     R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
     nu, dx = work[W_NU], work[W_DX]
-    # U = H P, whole padded rows (P is exactly symmetric, so U^T = P H^T exactly)
-    for k in range(m):
-        for j in range(P.shape[1]):
-            U[k, j] = 0.0
-    for ci in range(nc):
-        c = cols[ci]
+    # U = H P (P is exactly symmetric, so U^T = P H^T exactly), each entry summed in a register
+    for j in range(n):
         if m == 3:
-            h0, h1, h2 = Hm[0, c], Hm[1, c], Hm[2, c]
-            for j in range(P.shape[1]):
+            u0 = u1 = u2 = 0.0
+            for ci in range(nc):
+                c = cols[ci]
                 p = P[c, j]
-                U[0, j] += h0 * p
-                U[1, j] += h1 * p
-                U[2, j] += h2 * p
+                u0 += Hm[0, c] * p
+                u1 += Hm[1, c] * p
+                u2 += Hm[2, c] * p
+            U[0, j], U[1, j], U[2, j] = u0, u1, u2
         elif m == 2:
-            h0, h1 = Hm[0, c], Hm[1, c]
-            for j in range(P.shape[1]):
+            u0 = u1 = 0.0
+            for ci in range(nc):
+                c = cols[ci]
                 p = P[c, j]
-                U[0, j] += h0 * p
-                U[1, j] += h1 * p
+                u0 += Hm[0, c] * p
+                u1 += Hm[1, c] * p
+            U[0, j], U[1, j] = u0, u1
         else:
-            h0 = Hm[0, c]
-            for j in range(P.shape[1]):
-                U[0, j] += h0 * P[c, j]
+            u0 = 0.0
+            for ci in range(nc):
+                c = cols[ci]
+                u0 += Hm[0, c] * P[c, j]
+            U[0, j] = u0
     for k in range(m):
         for l in range(m):
             s = 0.0
@@ -307,15 +304,14 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     if not _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
         return False
     # K^T = S^-1 H P; Joseph form expanded: P - K U^T - U K^T + K S K^T = P + K G^T + G K^T
-    # with G = K S / 2 - U^T. Each entry adds K_ik G_jk + G_ik K_jk in the same order as
-    # its mirror entry, so P stays exactly symmetric in floating point.
+    # with G = K S / 2 - U^T.
     if m == 3:
         i00, i01, i02, i10, i11, i12 = Si[0, 0], Si[0, 1], Si[0, 2], Si[1, 0], Si[1, 1], Si[1, 2]
         i20, i21, i22 = Si[2, 0], Si[2, 1], Si[2, 2]
         s00, s01, s02, s10, s11, s12 = S[0, 0], S[0, 1], S[0, 2], S[1, 0], S[1, 1], S[1, 2]
         s20, s21, s22 = S[2, 0], S[2, 1], S[2, 2]
         n0, n1, n2 = nu[0], nu[1], nu[2]
-        for j in range(P.shape[1]):
+        for j in range(n):
             u0, u1, u2 = U[0, j], U[1, j], U[2, j]
             k0 = i00 * u0 + i01 * u1 + i02 * u2
             k1 = i10 * u0 + i11 * u1 + i12 * u2
@@ -329,15 +325,17 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             _tilt_only(x, Kt, Gt, dx, S, U, nu)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
-            for j in range(P.shape[1]):
-                P[i, j] = ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
-                    a2 * Gt[2, j] + b2 * Kt[2, j]
-                )
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = _joseph3(P, Kt, Gt, i, j, a0, b0, a1, b1, a2, b2)
+            else:
+                for j in range(n):
+                    P[i, j] = _joseph3(P, Kt, Gt, i, j, a0, b0, a1, b1, a2, b2)
     elif m == 2:
         i00, i01, i10, i11 = Si[0, 0], Si[0, 1], Si[1, 0], Si[1, 1]
         s00, s01, s10, s11 = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
         n0, n1 = nu[0], nu[1]
-        for j in range(P.shape[1]):
+        for j in range(n):
             u0, u1 = U[0, j], U[1, j]
             k0 = i00 * u0 + i01 * u1
             k1 = i10 * u0 + i11 * u1
@@ -347,19 +345,27 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1) - u1
         for i in range(n):
             a0, b0, a1, b1 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i]
-            for j in range(P.shape[1]):
-                P[i, j] = (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = _joseph2(P, Kt, Gt, i, j, a0, b0, a1, b1)
+            else:
+                for j in range(n):
+                    P[i, j] = _joseph2(P, Kt, Gt, i, j, a0, b0, a1, b1)
     else:
         i00, s00, n0 = Si[0, 0], S[0, 0], nu[0]
-        for j in range(P.shape[1]):
+        for j in range(n):
             k0 = i00 * U[0, j]
             Kt[0, j] = k0
             dx[j] = k0 * n0
             Gt[0, j] = 0.5 * (s00 * k0) - U[0, j]
         for i in range(n):
             a0, b0 = Kt[0, i], Gt[0, i]
-            for j in range(P.shape[1]):
-                P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
+            else:
+                for j in range(n):
+                    P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
     ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     if cfg[C_ADD] != ADD_NONE:
         if ib >= 0:
@@ -394,6 +400,27 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             if cfg[C_IBM] >= 0:
                 x[X_BM + a] += dx[cfg[C_IBM] + a]
     return True
+
+
+#: Covariances up to this size are updated on one triangle, mirrored (scalar code, half the
+#: entries: [mekf]'s 6 states); larger ones on whole rows, which the compiler vectorises
+#: ([ins-wind]'s 15: the triangle's rows of varying length were 20 % slower there).
+TRIANGLE_N = 8
+
+
+@njit(inline="always", **_JIT_CORE)
+def _joseph3(P, Kt, Gt, i, j, a0, b0, a1, b1, a2, b2):
+    """Entry (i, j) of P + K G^T + G K^T for 3 rows (a_k = K_ik, b_k = G_ik): it adds
+    K_ik G_jk + G_ik K_jk, its mirror's sum with the terms swapped, so both are equal."""
+    return ((P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])) + (
+        a2 * Gt[2, j] + b2 * Kt[2, j]
+    )
+
+
+@njit(inline="always", **_JIT_CORE)
+def _joseph2(P, Kt, Gt, i, j, a0, b0, a1, b1):
+    """:func:`_joseph3` for 2 rows."""
+    return (P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])) + (a1 * Gt[1, j] + b1 * Kt[1, j])
 
 
 @njit(inline="always", **_JIT_CORE)

@@ -56,6 +56,7 @@ from windahrs.aid.sideslip import (
 from windahrs.aid.tas import (
     fuse_tas,
 )
+from windahrs.core import pool
 from windahrs.core.events import sample_ok
 from windahrs.core.imu_screen import screen_imu
 from windahrs.core.kalman import grown_logs, log_layout, read_airspeed_scale, read_held, read_logs, read_resets
@@ -220,6 +221,7 @@ from windahrs.core.layout import (
     KernelState,
     cov_stride,
 )
+from windahrs.core.pool import stream_fence, stream_store3
 from windahrs.core.predict import (
     _predict_add,
     _predict_es,
@@ -365,11 +367,13 @@ def _window_add(x, flags, t, row):
 
 
 @njit(**_JIT_CORE)
-def _rotate_lowpass(cfg, prm, x, flags, wx, wy, wz, dt):
+def _rotate_lowpass(cfg, prm, x, flags, e, dt):
     """The low-passed vectors into the new body frame,
-    v <- C(Exp(w dt))^T v (w bias-corrected); with lowpass_bias, their bias sensitivities
-    too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`, :mod:`windahrs.aid.mag`)."""
-    c = _turn(wx, wy, wz, dt)
+    v <- C(e)^T v, e = Exp(w dt) the step's turn (w bias-corrected; the prediction's own,
+    :func:`windahrs.core.predict._predict_es` returns it); with lowpass_bias, their bias
+    sensitivities too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`,
+    :mod:`windahrs.aid.mag`)."""
+    c = _dcm9(e[0], e[1], e[2], e[3])
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
         if prm[R_LAGB] > 0:
@@ -394,6 +398,13 @@ def _turn(wx, wy, wz, dt):
     """C(Exp(w dt)), row-major: the body's turn over one IMU step at the rate w."""
     e = _qexp(wx * dt, wy * dt, wz * dt)
     return _dcm9(e[0], e[1], e[2], e[3])
+
+
+@njit(inline="always", **_JIT_CORE)
+def corrected_turn(x, row, dt):
+    """Exp((w - b_g) dt), the body's turn over one IMU step of dt s at the bias-corrected
+    rate of row = [w_b, ...] (what the error-state prediction turns the attitude by)."""
+    return _qexp((row[0] - x[X_BG]) * dt, (row[1] - x[X_BG + 1]) * dt, (row[2] - x[X_BG + 2]) * dt)
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -463,12 +474,16 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
-        if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
-            _rotate_lowpass(cfg, prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+        # (the low-passed means turn with the bias-corrected gyro as the attitude does: the
+        # error-state prediction's own turn, Exp((w - b_g) dt), computed once; the
+        # prediction does not change b_g)
         if cfg[C_ADD] == 1:
+            e = corrected_turn(x, row, dt)
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
-            _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
+            e = _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
+        if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
+            _rotate_lowpass(cfg, prm, x, flags, e, dt)
         if dt > prm[R_HOLD_DT]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
         if cfg[C_REST] != REST_OFF:  # the gyro's bias, when the vehicle is at rest
@@ -564,10 +579,10 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     # faster code)
     if kc < 0:
         pass
-    elif cfg[C_ADD] == 0:
+    elif cfg[C_ADD] == 0:  # (around the caches, core.pool.stream_store3: never read back here)
         for i in range(d):
             for j in range(d):
-                out_cov[kc, i, j] = P[i, j]
+                stream_store3(out_cov, kc, i, j, P[i, j])
     else:
         _record_tangent_cov(cfg, x, P, work, kc, out_cov)
     q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
@@ -647,6 +662,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
             record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
             if sm is not None:
                 record_post(sm, k, cfg, x, flags, P)
+    if rec:  # (the covariance was recorded around the caches: visible to every thread now)
+        stream_fence()
 
 
 # --- Python side: encoding, estimators, streamer -------------------------------------------
@@ -1020,11 +1037,16 @@ class CompiledEstimator(Estimator):
         initial: InitialState | None = None,
         cov: CovRecord = "full",
         cov_every: int | None = None,
+        *,
+        reuse: bool = True,
     ) -> PreparedRun:
         """What :func:`run_events` needs to run ``flight``: a fresh state, the merged events
         and the outputs (uninitialised), in a :class:`PreparedRun`; cov: the covariance to
         record (:data:`~windahrs.filters.base.CovRecord`), at every cov_every-th IMU sample
-        (as :meth:`run`'s, from the recorded block's size)."""
+        (as :meth:`run`'s, from the recorded block's size); reuse: the outputs and the
+        innovation logs in memory reused from dropped Estimates (:mod:`windahrs.core.pool`:
+        no page faults on their first touch), False for fresh arrays (a caller that
+        replaces them unwritten, as the batch does)."""
         if cov not in COV_RECORDS:
             raise ValueError(f"cov: expected one of {', '.join(map(repr, COV_RECORDS))}, found {cov!r}")
         self.check(flight)
@@ -1034,14 +1056,17 @@ class CompiledEstimator(Estimator):
         counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
         caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
         st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
+        new = pool.empty if reuse else np.empty
+        if reuse:
+            st = st._replace(inn=new(st.inn.shape))
         L = layout_for(self.kind, params, additive=self.additive)
         N, d = len(flight.imu.t), {"full": L.dim, "attitude": 3, "none": 0}[cov]
-        q, bg = np.empty((N, 4)), np.empty((N, 3))
-        v = np.empty((N, 3)) if L.has("v") else np.empty((0, 3))
-        w = np.empty((N, 3)) if L.has("wind") else np.empty((0, 3))
+        q, bg = new((N, 4)), new((N, 3))
+        v = new((N, 3)) if L.has("v") else np.empty((0, 3))
+        w = new((N, 3)) if L.has("wind") else np.empty((0, 3))
         every = cov_stride(N, d, cov_every)
         st.cfg[C_COV_EVERY] = every
-        P = np.empty((-(-N // every), d, d))
+        P = new((-(-N // every), d, d))
         return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)
 
     def finish(self, run: PreparedRun) -> Estimate:

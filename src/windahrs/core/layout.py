@@ -4,8 +4,9 @@ between events, as flat arrays named by the index constants below, and the senso
 
 :class:`KernelState` holds nine arrays: the configuration (ints) and parameters (floats)
 encoded once from the estimator's parameters, the nominal state with the samples it
-remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes, the inner
-loops running over whole padded rows), scratch space and the innovation logs. Helpers take
+remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes: the
+additive filters' loops run over whole padded rows, the error-state update and prediction
+over the n states), scratch space and the innovation logs. Helpers take
 the arrays they need, not the KernelState: numba reference-counts every array taken out of a tuple.
 """
 
@@ -242,8 +243,14 @@ X_JLAG = X_AVAR + 33  # (9,) row-major: how a gyro-bias error moves the low-pass
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
 X_NGAIN = X_AVAR + 42  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
 X_JMAG = X_AVAR + 44  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
-X_TINIT = X_AVAR + 53  # when the filter initialised, s (NaN: not yet): Estimate.init_index
-N_X = X_AVAR + 54
+#: (2,) each: the last step dt s of a low-pass at the IMU's (or magnetometer's) rate and its
+#: gain (core.predict.steady_gain): the gravity aid's mean, the INS's mean specific force
+#: (aid.gnss_vel), the magnetometer's mean
+X_FGAIN = X_AVAR + 53
+X_LGAIN = X_AVAR + 55
+X_MGAIN = X_AVAR + 57
+X_TINIT = X_AVAR + 59  # when the filter initialised, s (NaN: not yet): Estimate.init_index
+N_X = X_AVAR + 60
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

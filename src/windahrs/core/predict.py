@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from windahrs.core.layout import (
@@ -52,7 +53,7 @@ from windahrs.core.layout import (
 )
 from windahrs.core.quat import (
     _dcm9,
-    _qexp,
+    _qexp_half,
     _qmul,
     _qnormalize,
     _sinc,
@@ -75,6 +76,22 @@ NOISE_TAU = 3.0
 WIND_PARAMS = ("wind_noise", "wind_noise_vertical", "wind_vertical", "init_wind")
 
 
+@njit(**_JIT_CORE)
+def _lowpass_gain(dt, tau):
+    """Weight of a new sample in a first-order low-pass after dt."""
+    return 1.0 - math.exp(-dt / tau) if dt > 0 else 0.0
+
+
+@njit(inline="always", **_JIT_CORE)
+def steady_gain(x, i, dt, tau):
+    """:func:`_lowpass_gain` (dt, tau) of a low-pass whose tau is fixed for the run, remembered
+    with its step in x[i:i+2] (dt, gain): at a steady sample rate the exponential once. A
+    fresh state (zeros) holds the gain of dt = 0, which is 0."""
+    if dt != x[i]:
+        x[i], x[i + 1] = dt, _lowpass_gain(dt, tau)
+    return x[i + 1]
+
+
 @njit(inline="always", **_JIT_CORE)
 def track_accel_noise(cfg, prm, x, dt):
     """The accelerometer's noise on line, from the differences of consecutive samples
@@ -86,12 +103,7 @@ def track_accel_noise(cfg, prm, x, dt):
     the first seconds are weighed by the noise measured, not by a variance growing from zero.
     Read by the gravity aid source (its R) and the INS's prediction (its input's density)."""
     d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
-    if dt == x[X_NGAIN]:  # (a steady IMU rate: the exponential once)
-        gain = x[X_NGAIN + 1]
-    else:
-        tau = prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU
-        gain = 1.0 - math.exp(-dt / tau)
-        x[X_NGAIN], x[X_NGAIN + 1] = dt, gain
+    gain = steady_gain(x, np.int64(X_NGAIN), dt, prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU)
     if cfg[C_AVAR] == 2:
         x[X_NAVAR] += 1.0
         gain = max(gain, 1.0 / x[X_NAVAR])
@@ -102,11 +114,12 @@ def track_accel_noise(cfg, prm, x, dt):
 def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     """The error-state prediction (SPEC 2.4, 2.5), using Phi's block structure: only the attitude (and velocity)
     rows and columns of P change before Q is added (layout: att 0..2, v 3..5). The 3x3
-    blocks of Phi live in local scalars."""
+    blocks of Phi live in local scalars. Returns the step's turn Exp((w_m - b_g) dt) (the
+    kernel turns its low-passed means with it)."""
     n, ib, iv, iw, iba = cfg[C_N], cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
-    e = _qexp(wx * dt, wy * dt, wz * dt)
+    e, sh = _qexp_half(wx * dt, wy * dt, wz * dt)
     q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
     # the attitude transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
@@ -115,10 +128,10 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     if a * dt < 1e-6:  # the series (the closed form loses precision)
         c11, c12 = -dt, 0.5 * dt**2
         c21, c22 = 0.5 * dt**2, -(dt**3) / 6.0
-    else:
-        s, c = math.sin(a * dt), math.cos(a * dt)
-        c11, c12 = -s / a, (1 - c) / a**2
-        c21, c22 = (1 - c) / a**2, -(a * dt - s) / a**3
+    else:  # sin(a dt) and 1 - cos(a dt) from the turn's half angle (sh, e[0] = its cosine)
+        s, omc = 2.0 * sh * e[0], 2.0 * sh * sh
+        c11, c12 = -s / a, omc / a**2
+        c21, c22 = omc / a**2, -(a * dt - s) / a**3
     xy, xz, yz = wy * wx, wz * wx, wz * wy
     s00, s11, s22 = -(wz * wz) - wy * wy, -(wz * wz) - wx * wx, -(wy * wy) - wx * wx
     p00, p01, p02 = 1.0 + c12 * s00, c11 * -wz + c12 * xy, c11 * wy + c12 * xz
@@ -127,9 +140,9 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     r00, r01, r02 = -dt + c22 * s00, c21 * -wz + c22 * xy, c21 * wy + c22 * xz
     r10, r11, r12 = c21 * wz + c22 * xy, -dt + c22 * s11, c21 * -wx + c22 * yz
     r20, r21, r22 = c21 * -wy + c22 * xz, c21 * wx + c22 * yz, -dt + c22 * s22
-    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], whole padded rows. One
+    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], the n columns. One
     # output row per loop keeps LLVM's runtime alias checks few enough to vectorise.
-    for j in range(P.shape[1]):
+    for j in range(n):
         M[0, j] = (
             p00 * P[0, j]
             + p01 * P[1, j]
@@ -138,7 +151,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r01 * P[ib + 1, j]
             + (r02 * P[ib + 2, j])
         )
-    for j in range(P.shape[1]):
+    for j in range(n):
         M[1, j] = (
             p10 * P[0, j]
             + p11 * P[1, j]
@@ -147,7 +160,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r11 * P[ib + 1, j]
             + (r12 * P[ib + 2, j])
         )
-    for j in range(P.shape[1]):
+    for j in range(n):
         M[2, j] = (
             p20 * P[0, j]
             + p21 * P[1, j]
@@ -188,26 +201,26 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         d20, d21, d22 = -C[6] * dt, -C[7] * dt, -C[8] * dt
         # M[3:6] = velocity rows of Phi P = P[v] + CF M[0:3] (+ Cdt P[ba])
         if iba >= 0:
-            for j in range(P.shape[1]):
+            for j in range(n):
                 M[3, j] = (
                     P[iv, j]
                     + (f00 * M[0, j] + f01 * M[1, j] + f02 * M[2, j])
                     + (d00 * P[iba, j] + d01 * P[iba + 1, j] + d02 * P[iba + 2, j])
                 )
-            for j in range(P.shape[1]):
+            for j in range(n):
                 M[4, j] = (
                     P[iv + 1, j]
                     + (f10 * M[0, j] + f11 * M[1, j] + f12 * M[2, j])
                     + (d10 * P[iba, j] + d11 * P[iba + 1, j] + d12 * P[iba + 2, j])
                 )
-            for j in range(P.shape[1]):
+            for j in range(n):
                 M[5, j] = (
                     P[iv + 2, j]
                     + (f20 * M[0, j] + f21 * M[1, j] + f22 * M[2, j])
                     + (d20 * P[iba, j] + d21 * P[iba + 1, j] + d22 * P[iba + 2, j])
                 )
         else:
-            for j in range(P.shape[1]):
+            for j in range(n):
                 m0, m1, m2 = M[0, j], M[1, j], M[2, j]
                 M[3, j] = P[iv, j] + (f00 * m0 + f01 * m1 + f02 * m2)
                 M[4, j] = P[iv + 1, j] + (f10 * m0 + f11 * m1 + f12 * m2)
@@ -267,6 +280,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         P[iw, iw] += prm[R_WH2] * dt
         P[iw + 1, iw + 1] += prm[R_WH2] * dt
         P[iw + 2, iw + 2] += prm[R_WV2] * dt
+    return e
 
 
 @njit(**_JIT_CORE)

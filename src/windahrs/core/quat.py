@@ -30,10 +30,20 @@ def _qmul(a0, a1, a2, a3, b0, b1, b2, b3):
 
 
 @njit(**_JIT_CORE)
-def _qexp(px, py, pz):
+def _qexp_half(px, py, pz):
+    """Exp(p), the unit quaternion of the rotation vector p (rad), and sin(|p| / 2): its
+    half angle's sine and cosine from one sincos, which the error-state prediction's
+    transition reuses (sin a = 2 sin(a/2) cos(a/2), 1 - cos a = 2 sin^2(a/2))."""
     a = math.sqrt(px * px + py * py + pz * pz)
-    s = 0.5 * _sinc(a / (2.0 * math.pi))
-    return math.cos(0.5 * a), s * px, s * py, s * pz
+    h = 0.5 * a
+    ch, sh = math.cos(h), math.sin(h)
+    s = sh / a if a > 0.0 else 0.5
+    return (ch, s * px, s * py, s * pz), sh
+
+
+@njit(**_JIT_CORE)
+def _qexp(px, py, pz):
+    return _qexp_half(px, py, pz)[0]
 
 
 @njit(**_JIT_CORE)

@@ -46,7 +46,7 @@ from windahrs.aid.mag import heading_reset, mag_reference, measured_heading
 from windahrs.core import predict as process
 from windahrs.core.dense import unscented_gain
 from windahrs.core.events import sample_ok
-from windahrs.core.kalman import _gate, _log, _lowpass_gain
+from windahrs.core.kalman import _gate, _log
 from windahrs.core.kernel import (
     _STREAMS,
     CompiledStreamer,
@@ -55,6 +55,7 @@ from windahrs.core.kernel import (
     _innovations,
     _resets,
     _rotate_lowpass,
+    corrected_turn,
     effective_mag_mode,
     imu_clock,
     init_index,
@@ -91,7 +92,7 @@ from windahrs.core.layout import (
     X_Q,
     KernelState,
 )
-from windahrs.core.predict import track_accel_noise
+from windahrs.core.predict import _lowpass_gain, track_accel_noise
 from windahrs.core.quat import (
     _dcm9,
     _euler,
@@ -374,7 +375,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
     fx, fy, fz = row[3], row[4], row[5]
     if dt > 0:
         if flags[S_FBAR] == 1:
-            _rotate_lowpass(cfg, prm, x, flags, row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2], dt)
+            _rotate_lowpass(cfg, prm, x, flags, corrected_turn(x, row, dt), dt)
         _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
         if cfg[C_AVAR] >= 1:
             track_accel_noise(cfg, prm, x, dt)
