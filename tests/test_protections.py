@@ -12,7 +12,7 @@ import pytest
 import windahrs as wa
 from windahrs.core.layout import COV_BUDGET, cov_stride
 from windahrs.estimate import Estimate, load_estimate, save_estimate
-from windahrs.flags import FLAGS, flag_names, flag_spans
+from windahrs.flags import FLAGS, flag_names, flag_spans, stream_flags
 from windahrs.flight import Flight, ImuStream
 from windahrs.metrics import attitude_errors, nees_attitude
 from windahrs.repair import GYRO_RANGE
@@ -168,6 +168,16 @@ def test_a_clipped_axis_is_flagged(fixedwing: Flight) -> None:
     est = _quiet_run("mekf", _with_imu(fixedwing, fixedwing.imu.w_b, f))
     assert est.flags is not None
     assert np.array_equal((est.flags & _bit("imu_clipped")) != 0, on)
+
+
+def test_an_axis_clipped_on_both_sides_is_flagged(fixedwing: Flight) -> None:
+    """Vibration through a 250 deg/s range: the axis alternates between +range and -range,
+    so no two consecutive values are equal, only their magnitudes."""
+    t, w = fixedwing.imu.t, fixedwing.imu.w_b.copy()
+    on = (t >= 10.0) & (t < 10.1)
+    w[on, 0] = np.radians(250.0) * np.where(np.arange(on.sum()) % 2 == 0, 1.0, -1.0)
+    on_flags = stream_flags(_with_imu(fixedwing, w, fixedwing.imu.f_b))["imu_clipped"][1]
+    assert np.array_equal(on_flags, on)
 
 
 def test_an_axis_held_at_a_small_value_is_flagged(fixedwing: Flight) -> None:

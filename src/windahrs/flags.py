@@ -229,10 +229,9 @@ def stream_flags(flight: Flight) -> dict[str, tuple[F64, NDArray[np.bool_]]]:
             col = v[:, a]
             held = np.zeros(len(col), dtype=bool)
             held[1:] = (col[1:] == col[:-1]) & np.isfinite(col[1:])
-            if not held.any():
-                continue
-            clipped |= _runs(held & ~whole, imu.t, STUCK_SAMPLES, STUCK_S)  # one axis, any value
-            if big[:, a].any():
+            if held.any():  # one axis holding any value
+                clipped |= _runs(held & ~whole, imu.t, STUCK_SAMPLES, STUCK_S)
+            if big[:, a].any():  # one large magnitude, either sign
                 same = np.zeros(len(col), dtype=bool)
                 same[1:] = (np.abs(col[1:]) == np.abs(col[:-1])) & big[1:, a]
                 clipped |= _runs(same, imu.t, CLIP_SAMPLES, 0.0)
