@@ -110,6 +110,12 @@ def test_late_magnetometer_start_without_it_then_turn_to_it() -> None:
     assert all(est.flags[:k_init] & _bit("not_initialised")) and not any(est.flags[k_init:] & _bit("not_initialised"))
     tilt = attitude_errors(est, flight).tilt[:k_init]
     assert np.degrees(tilt).max() < 5.0
+    # ... with the heading unknown (heading 0 stands for it): pi^2/3 about the vertical
+    att = est.att_cov()
+    assert att is not None
+    top = np.linalg.eigvalsh(att)[:, -1]
+    np.testing.assert_allclose(top[:k_init], np.pi**2 / 3.0, rtol=1e-9)
+    assert top[k_init] < 0.1
     (row,) = est.resets["mag"]
     assert row[0] == flight.mag.t[0] and np.isnan(row[2])
     assert any("mag taken for the heading (absent at the start" in line for line in est.warnings())

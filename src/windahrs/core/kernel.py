@@ -234,7 +234,7 @@ from windahrs.core.quat import (
     _triad,
     _xi_into,
 )
-from windahrs.core.reset import set_attitude_cov
+from windahrs.core.reset import attitude_cov_about_vertical, set_attitude_cov
 from windahrs.core.smooth import record_post, record_pre
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
@@ -261,6 +261,10 @@ from windahrs.models.error_state import Layout
 #: the gyro's from yaw 0, said in the Estimate) and turns to the field's heading at the first
 #: sample (:func:`windahrs.aid.mag.fuse_mag`).
 MAG_WAIT = 1.0
+#: The heading's variance, rad^2, in the rows recorded while the filter waits for the
+#: magnetometer that will set it (heading 0 stands for "unknown"): a heading uniform on the
+#: circle, pi^2 / 3.
+HEADING_UNKNOWN_VAR = math.pi**2 / 3.0
 
 
 @njit(**_JIT_CORE)
@@ -568,13 +572,16 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     (ceil(N / e), d, d) when k is a multiple of e = cfg[C_COV_EVERY]: its leading d x d
     block for d = out_cov.shape[1], the whole (cfg[C_DIM]), the attitude's (3) or none (0).
     Before the filter starts, the state and covariance it would start from
-    (:func:`_initial_state`): the rows are finite, and flagged not_initialised."""
+    (:func:`_initial_state`), with :data:`HEADING_UNKNOWN_VAR` about the vertical while it
+    waits for the magnetometer: the rows are finite, and flagged not_initialised."""
     d = out_cov.shape[1]
     iv, iw = cfg[C_IV], cfg[C_IW]
     e = cfg[C_COV_EVERY]
     kc = k // e if k % e == 0 else -1
     if flags[S_INIT] == 0:  # the state it would start from now (x and P are free until then)
         _initial_state(cfg, prm, x, flags, P, work)
+        if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:  # waiting for the heading's sensor
+            attitude_cov_about_vertical(cfg, x, P, work, prm[R_P0_ATT], HEADING_UNKNOWN_VAR)
     # (the covariance first, then the vectors, loaded before they are stored: measurably
     # faster code)
     if kc < 0:

@@ -116,8 +116,15 @@ def set_attitude_cov(cfg, prm, x, P, work):
 @njit(**_JIT_CORE)
 def _set_attitude_cov_yaw(cfg, prm, x, P, work):
     """set_attitude_cov with a separate spread about the nav vertical (init_yaw)."""
-    var = prm[R_P0_ATT]
-    dv = prm[R_P0_YAW] - var
+    attitude_cov_about_vertical(cfg, x, P, work, prm[R_P0_ATT], prm[R_P0_YAW])
+
+
+@njit(**_JIT_CORE)
+def attitude_cov_about_vertical(cfg, x, P, work, var, var_yaw):
+    """The attitude's spread to var per axis and var_yaw about the nav vertical (body
+    direction ``d = C_bn e_3``: ``var I + (var_yaw - var) d d^T``), uncorrelated with the
+    other states (additive form: on the quaternion, ``1/4 Xi (.) Xi^T``)."""
+    dv = var_yaw - var
     w, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
     d = (2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), w * w - qx * qx - qy * qy + qz * qz)
     # the 3x3 spread var I + dv d d^T, entry by entry (nothing allocated: the core runs
