@@ -143,8 +143,8 @@ if TYPE_CHECKING:
     from windahrs.flight import Flight, Site
 
 __all__ = [
-    "METHODS", "SMOOTH_BUDGET", "SmoothRecord", "Smoothed", "reversed_flight", "reversible", "smooth", "smooth_bytes",
-    "smoothed_label", "supports",
+    "METHODS", "SMOOTH_BUDGET", "SmoothRecord", "Smoothed", "check_method", "reversed_flight", "reversible", "smooth",
+    "smooth_bytes", "smoothed_label", "supports",
 ]  # fmt: skip
 
 #: The smoothing record a run may take at most, bytes (2 GiB): the covariance and nominal
@@ -458,8 +458,7 @@ def smooth(
     :data:`SMOOTH_BUDGET`."""
     from windahrs.filters.auto import Auto
 
-    if method not in METHODS:
-        raise ValueError(f"smoothing: method: expected one of {', '.join(METHODS)}, found {method!r}")
+    check_method(method)
     why = supports(est)
     if why is not None:
         raise ValueError(why)
@@ -481,6 +480,13 @@ def smooth(
 FUSE_LIMIT = math.radians(30.0)
 #: The smoothing methods :func:`smooth` takes.
 METHODS = ("auto", "two-filter", "rts")
+
+
+def check_method(method: object, field: str = "smoothing: method") -> None:
+    """ValueError naming ``field`` unless ``method`` is one of :data:`METHODS` (the one check
+    of :func:`smooth`, :class:`Smoothed` and a spec's ``smoother=``)."""
+    if method not in METHODS:
+        raise ValueError(f"{field}: expected one of {', '.join(METHODS)}, found {method!r}")
 
 
 def reversible(est: Any, flight: Flight) -> str | None:
@@ -702,8 +708,7 @@ class Smoothed(Estimator):
         why = supports(inner)
         if why is not None:
             raise ValueError(why)
-        if method not in METHODS:
-            raise ValueError(f"smoothing: method: expected one of {', '.join(METHODS)}, found {method!r}")
+        check_method(method)
         self.inner = inner
         self.method = method
         self.name = smoothed_label(inner.name)  # type: ignore[misc]

@@ -120,10 +120,9 @@ def make_estimator(spec: str, params_file: str | Path | None = None) -> Estimato
         raise ValueError(f"filter {spec!r}: smooth: expected true or false, found {smooth!r}")
     method = overrides.pop("smoother", None)
     if method is not None:
-        from windahrs.core.smooth import METHODS
+        from windahrs.core.smooth import check_method
 
-        if method not in METHODS:
-            raise ValueError(f"filter {spec!r}: smoother: expected one of {', '.join(METHODS)}, found {method!r}")
+        check_method(method, f"filter {spec!r}: smoother")
         smooth = True
     if name.endswith(SMOOTH_SUFFIX) and name not in REGISTRY:
         name, smooth = name[: -len(SMOOTH_SUFFIX)], True
