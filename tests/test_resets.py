@@ -26,10 +26,12 @@ def _upside_down(flight: wa.Flight) -> InitialState:
 
 
 def test_upside_down_start_is_levelled_logged_and_warned(tmp_path) -> None:
+    # the lost-gravity timeout alone (the start check, which levels this start at 3 s, off)
     flight = wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0)
-    lost = r"mekf: accel off the state \(by more than 45 deg, or 25 deg at gravity's length\) for 5\.\d s; "
+    spec = "mekf:start_check=false"
+    lost = spec + r": accel off the state \(by more than 45 deg, or 25 deg at gravity's length\) for 5\.\d s; "
     with pytest.warns(EstimatorWarning, match=lost + r"at t = 5\.\d+ s attitude levelled"):
-        est = wa.estimator("mekf").run(flight, initial=_upside_down(flight))
+        est = wa.estimator(spec).run(flight, initial=_upside_down(flight))
     rows = est.resets["accel"]
     assert rows.shape[1] == 3 and rows[0, 1] > np.radians(150)  # the first reset undoes the flip
     tilt = np.degrees(attitude_errors(est, flight).tilt)
@@ -37,6 +39,43 @@ def test_upside_down_start_is_levelled_logged_and_warned(tmp_path) -> None:
     assert tilt[est.t > 15.0].max() < 3.0  # ... and level again after it
     path = save_estimate(est, tmp_path / "e.h5")
     np.testing.assert_array_equal(load_estimate(path).resets["accel"], rows)
+
+
+def _first_sample_turned(flight: wa.Flight, deg: float, length: float) -> wa.Flight:
+    """``flight`` with its first specific-force sample turned by ``deg`` about body x and
+    scaled to ``length`` m/s^2: what rotor vibration made of ANSFL path_6's (4.5 m/s^2,
+    37 deg from its first second's mean)."""
+    f = flight.imu.f_b.copy()
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    u = f[0] / np.linalg.norm(f[0])
+    f[0] = length * np.array([u[0], c * u[1] - s * u[2], s * u[1] + c * u[2]])
+    return flight.replace(imu=dataclasses.replace(flight.imu, f_b=f))
+
+
+def test_a_start_sample_turned_by_vibration_is_caught_by_the_start_check() -> None:
+    """The mean starts at the one sample and the gate keeps the filter on it: the start check
+    levels it once the plain mean spans accel_lowpass (3 s), not after reset_timeout (5 s),
+    and restarts the mean from the plain one (without it the first sample's share keeps the
+    tilt 1-2 deg off for the rest of this flight)."""
+    flight = _first_sample_turned(wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0), 60.0, 4.5)
+    with pytest.warns(EstimatorWarning, match=r"mekf: accel off the state .* for 3\.0 s; at t = 3\.0\d s attitude"):
+        est = wa.estimator("mekf").run(flight)
+    assert est.resets["accel"][0, 0] == pytest.approx(3.0, abs=0.02)
+    assert np.degrees(est.resets["accel"][0, 1]) > 45.0
+    tilt = np.degrees(attitude_errors(est, flight).tilt)
+    assert tilt[(est.t > 1.0) & (est.t < 2.9)].min() > 45.0  # on the sample until the check...
+    assert tilt[est.t > 6.0].max() < 1.0  # ... and level after it
+    with pytest.warns(EstimatorWarning):
+        late = wa.estimator("mekf:start_check=false").run(flight)
+    assert late.resets["accel"][0, 0] >= 5.0  # the timeout's reset instead
+
+
+def test_the_start_check_leaves_a_good_start_alone() -> None:
+    flight = wa.simulate("quadrotor", seed=3, wind=8.0, duration=8.0)
+    on, off = wa.estimator("mekf").run(flight), wa.estimator("mekf:start_check=false").run(flight)
+    assert on.resets == {}
+    np.testing.assert_array_equal(on.q_nb, off.q_nb)
 
 
 def test_no_reset_without_timeout_and_none_on_a_good_start() -> None:

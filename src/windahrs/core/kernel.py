@@ -89,6 +89,7 @@ from windahrs.core.layout import (
     C_MAG,
     C_N,
     C_REST,
+    C_SCHECK,
     C_SITE_MAG,
     C_SYN,
     C_TILT,
@@ -206,8 +207,10 @@ from windahrs.core.layout import (
     X_JLAG,
     X_JMAG,
     X_MBAR,
+    X_NRM,
     X_NWIN,
     X_Q,
+    X_RM,
     X_TIMU,
     X_TINIT,
     X_TOK,
@@ -293,6 +296,10 @@ def _try_init(cfg, prm, x, flags, P, work):
         for a in range(9):
             x[X_JLAG + a] = 0.0
         flags[S_FBAR] = 1
+        if cfg[C_SCHECK] == 1:  # the start check's running mean (aid.gravity.start_check)
+            for a in range(3):
+                x[X_RM + a] = x[f0 + a]
+            x[X_NRM] = 1.0
     flags[S_WPEND] = 1 if (cfg[C_IW] >= 0 and cfg[C_INI_W] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
         x[X_TOK + s] = x[X_TIMU]
@@ -376,12 +383,15 @@ def _rotate_lowpass(cfg, prm, x, flags, e, dt):
     v <- C(e)^T v, e = Exp(w dt) the step's turn (w bias-corrected; the prediction's own,
     :func:`windahrs.core.predict._predict_es` returns it); with lowpass_bias, their bias
     sensitivities too, J <- C^T J + dt I (:func:`windahrs.aid.gravity.fuse_gravity`,
-    :mod:`windahrs.aid.mag`)."""
+    :mod:`windahrs.aid.mag`); and the start check's running mean
+    (:func:`windahrs.aid.gravity.start_check`) while it runs."""
     c = _dcm9(e[0], e[1], e[2], e[3])
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
         if prm[R_LAGB] > 0:
             _age_rotated(c, x, np.int64(X_JLAG), dt)
+    if x[X_NRM] > 0:
+        _rotate_into(c, x, np.int64(X_RM))
     if flags[S_MBAR] == 1:
         _rotate_into(c, x, np.int64(X_MBAR))
         if prm[R_LAGB] > 0 and cfg[C_MAG] == MAG_3D:
@@ -769,6 +779,8 @@ def make_state(
     cfg[C_TILT] = int(kind != "ins-wind" and not additive
                       and ("mag" not in has or effective_mag_mode(p, site) == "off"))
     cfg[C_REST] = _REST[p.rest_detection]
+    # the filters that fuse the mean specific force as gravity check its start (not the INS)
+    cfg[C_SCHECK] = int(p.start_check and kind != "ins-wind" and p.accel_lowpass > 0 and p.reset_timeout > 0)
     if p.rest_detection == "auto":
         cfg[C_REST] = REST_ON if cfg[C_TILT] == 1 else REST_OFF
     cfg[C_AVAR] = (2 if p.accel_noise_mean_start else 1) if (p.accel_noise_online and p.accel_lowpass > 0) else 0

@@ -129,7 +129,8 @@ C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample 
 C_ASC = 24  # 1: estimate the airspeed scale on line (windahrs.aid.airspeed_scale)
 C_REST = 25  # REST_*: fuse the gyro's bias at rest (windahrs.aid.rest): never, always, until the first motion
 C_TILT = 26  # 1: the gravity update corrects the tilt only (no heading aid: windahrs.core.kalman._fuse)
-C_OFF = 27  # (N_SENSORS,) first row of each sensor's log
+C_SCHECK = 27  # 1: the gravity mean's start is checked against a running mean (windahrs.aid.gravity.start_check)
+C_OFF = 28  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
@@ -250,7 +251,9 @@ X_FGAIN = X_AVAR + 53
 X_LGAIN = X_AVAR + 55
 X_MGAIN = X_AVAR + 57
 X_TINIT = X_AVAR + 59  # when the filter initialised, s (NaN: not yet): Estimate.init_index
-N_X = X_AVAR + 60
+X_RM = X_AVAR + 60  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
+X_NRM = X_AVAR + 63  # samples in it (0: no start check pending)
+N_X = X_AVAR + 64
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

@@ -242,7 +242,15 @@ class EskfParams:
     (default 5 s, PX4 EKF2_NOAID_TOUT, the longest EKF2 dead-reckons before it resets to
     its aiding; 0: never). GNSS velocity kept out as long resets the INS to it
     (:mod:`windahrs.aid.gnss_vel`: velocity, attitude spread, biases, wind; the heading then
-    turns to the next magnetometer sample).
+    turns to the next magnetometer sample). start_check (with accel_lowpass and
+    reset_timeout > 0; the filters that fuse gravity): once accel_lowpass seconds have passed
+    since the start, the plain mean of the specific force since then (VQF's start of its
+    low-pass filters) is held against the state's gravity by the same test, and failing it
+    the filter is levelled to it at once: the low-passed mean starts at one sample, which
+    rotor vibration can turn by tens of degrees, and forgets it only over accel_lowpass,
+    while the gyro bias takes up the drift (default True; measured: ANSFL quadrotor tilt,
+    aligned on vqf, path_6 29.9 -> 22.6 deg, path_7 9.3 -> 6.8, path_11 7.9 -> 6.9, the other
+    13 flights, BROAD and the simulated flights unchanged; docs/RESULTS.md section 23).
 
     Held samples. unmeasured_motion_dt s: an IMU step longer than this is taken to hold a
     point sample over motion it did not measure, and adds the noise of that to the
@@ -338,6 +346,7 @@ class EskfParams:
     accel_noise_online: bool = False
     accel_noise_mean_start: bool = True
     reset_timeout: float = 5.0
+    start_check: bool = True
     unmeasured_motion_dt: float = 1.0 / 50.0
     gyro_range: float = GYRO_RANGE
     accel_range: float = ACCEL_RANGE
