@@ -37,6 +37,9 @@ def test_upside_down_start_is_levelled_logged_and_warned(tmp_path) -> None:
     tilt = np.degrees(attitude_errors(est, flight).tilt)
     assert tilt[np.searchsorted(est.t, 4.0)] > 150  # lost before the timeout...
     assert tilt[est.t > 15.0].max() < 3.0  # ... and level again after it
+    # the tilt check's mean starts again at the reset: no alert for the level attitude after
+    # it (before, the forces rotated by the flipped attitude read as 60 deg off until 20 s)
+    assert "tilt" not in est.alerts
     path = save_estimate(est, tmp_path / "e.h5")
     np.testing.assert_array_equal(load_estimate(path).resets["accel"], rows)
 
@@ -66,6 +69,7 @@ def test_a_start_sample_turned_by_vibration_is_caught_by_the_start_check() -> No
     tilt = np.degrees(attitude_errors(est, flight).tilt)
     assert tilt[(est.t > 1.0) & (est.t < 2.9)].min() > 45.0  # on the sample until the check...
     assert tilt[est.t > 6.0].max() < 1.0  # ... and level after it
+    assert "tilt" not in est.alerts
     with pytest.warns(EstimatorWarning):
         late = wa.estimator("mekf:start_check=false").run(flight)
     assert late.resets["accel"][0, 0] >= 5.0  # the timeout's reset instead

@@ -89,8 +89,8 @@ def tilt_alerts(
 ) -> F64:
     """The spans where the estimate's tilt disagrees with the mean specific force (see the
     module): (K, 3) rows [t_start s, t_end s, largest disagreement deg]. The mean is a running
-    mean for the first tau seconds, which are not checked. est.t must be the flight's IMU
-    times."""
+    mean for the first tau seconds, which are not checked, and starts again at each of the
+    estimate's resets (``est.resets``). est.t must be the flight's IMU times."""
     t, imu = est.t, flight.imu
     if len(t) != len(imu.t) or len(t) < 2:
         return np.empty((0, 3))
@@ -116,20 +116,34 @@ def tilt_alerts(
             a_n = np.gradient(g.v_n[ok], g.t[ok], axis=0)
             for k in range(3):  # the measured acceleration, removed
                 f_n[:, k] -= np.interp(t, g.t[ok], a_n[:, k])
-    # the running mean until it spans tau (VQF's start), then a first-order low-pass from it
-    n0 = max(1, int(np.searchsorted(t, t[0] + tau)))
-    head = np.cumsum(f_n[:n0], axis=0) / np.arange(1, n0 + 1)[:, None]
-    a = math.exp(-dt / tau)
-    tail = lfilter([1.0 - a], [1.0, -a], f_n[n0:], axis=0, zi=(a * head[-1])[None, :])[0]
-    mean = np.concatenate([head, tail])
+    # the mean restarts at each of the filter's resets: the forces before one were rotated
+    # by the attitude the reset discarded, and would hold a right attitude after it off for
+    # tau and more (an upside-down start levelled at 3 s read as 35-60 deg off until 20 s)
+    mean = np.empty_like(f_n)
+    fresh = np.zeros(len(t), dtype=bool)  # within tau of the start or of a reset: not checked
+    cuts = [np.searchsorted(t, r) for rows in est.resets.values() for r in np.asarray(rows)[:, 0]]
+    bounds = np.unique(np.clip(np.r_[0, cuts, len(t)], 0, len(t)).astype(np.int64))
+    for i0, i1 in zip(bounds[:-1], bounds[1:], strict=True):
+        mean[i0:i1] = _check_mean(t[i0:i1], f_n[i0:i1], tau, dt)
+        fresh[i0:i1] = t[i0:i1] < t[i0] + tau
     # |mean + g_n| = 2 g sin(theta / 2) for a tilt error theta; it also catches an attitude
     # that follows every sample's specific force (its mean then stays vertical, but longer
     # than g: the accelerations rectified)
     mean[:, 2] += flight.site.gravity
     off = np.linalg.norm(mean, axis=1) / (2.0 * flight.site.gravity)
     angle = np.degrees(2.0 * np.arcsin(np.clip(off, 0.0, 1.0)))
-    over = (angle > limit_deg) & (t >= t[0] + tau) & ~unmeasured
+    over = (angle > limit_deg) & ~fresh & ~unmeasured
     return _spans(t, over, angle, hold_s)
+
+
+def _check_mean(t: F64, f_n: F64, tau: float, dt: float) -> F64:
+    """The tilt check's mean of f_n (N, 3) at times t: the running mean until it spans tau
+    (VQF's start), then a first-order low-pass from it."""
+    n0 = max(1, int(np.searchsorted(t, t[0] + tau)))
+    head = np.cumsum(f_n[:n0], axis=0) / np.arange(1, n0 + 1)[:, None]
+    a = math.exp(-dt / tau)
+    tail = lfilter([1.0 - a], [1.0, -a], f_n[n0:], axis=0, zi=(a * head[-1])[None, :])[0]
+    return np.concatenate([head, tail])
 
 
 def _spans(t: F64, over: NDArray[np.bool_], value: F64, hold_s: float) -> F64:
