@@ -20,6 +20,7 @@ they are the flight's, the same for every estimator, and said once where the fli
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import warnings
 
@@ -123,7 +124,7 @@ def tilt_alerts(
     fresh = np.zeros(len(t), dtype=bool)  # within tau of the start or of a reset: not checked
     cuts = [np.searchsorted(t, r) for rows in est.resets.values() for r in np.asarray(rows)[:, 0]]
     bounds = np.unique(np.clip(np.r_[0, cuts, len(t)], 0, len(t)).astype(np.int64))
-    for i0, i1 in zip(bounds[:-1], bounds[1:], strict=True):
+    for i0, i1 in itertools.pairwise(bounds):
         mean[i0:i1] = _check_mean(t[i0:i1], f_n[i0:i1], tau, dt)
         fresh[i0:i1] = t[i0:i1] < t[i0] + tau
     # |mean + g_n| = 2 g sin(theta / 2) for a tilt error theta; it also catches an attitude
