@@ -122,7 +122,9 @@ class Estimate:
     of the state to it after its gate had kept it out for the filter's ``reset_timeout``,
     (K, 3) rows of [t s, size (rad for an attitude reset, m/s for a velocity reset), how
     long the sensor had been kept out s (NaN: the heading was unknown, at a start without
-    the magnetometer or after a GNSS reset, and turned to its next sample)];
+    the magnetometer or after a reset, and turned to its next sample; negative, -T: the
+    start check, the plain mean of the first T s off the state,
+    :func:`windahrs.aid.gravity.start_check`)];
     :meth:`warnings` says them in words. alerts: what
     the checks of :mod:`windahrs.filters.checks` found, e.g. ``"tilt"``: (K, 3) rows
     [t_start s, t_end s, largest disagreement deg] where the estimate's tilt disagreed with
@@ -262,6 +264,10 @@ class Estimate:
                 if not np.isfinite(out_for):  # the heading unknown: a start without it, a GNSS reset
                     out.append(f"{self.filter}: {sensor} taken for the heading (absent at the start, or after "
                                f"a reset); at t = {t:.2f} s {what}")
+                    continue
+                if out_for < 0:  # the start check (windahrs.aid.gravity.start_check)
+                    out.append(f"{self.filter}: {sensor} mean over the first {-out_for:.1f} s off the state (by more "
+                               f"than 45 deg, or 25 deg at gravity's length; the start check); at t = {t:.2f} s {what}")
                     continue
                 why = {
                     "gnss": "rejected",

@@ -67,6 +67,7 @@ from windahrs.core.layout import (
     X_Q,
     X_RM,
     X_TINIT,
+    X_TOK,
     X_VAIR,
 )
 from windahrs.core.predict import steady_gain, track_accel_noise
@@ -164,6 +165,7 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
     rn = math.sqrt(rx * rx + ry * ry + rz * rz)
     if rn <= 0.0 or knows_gravity(-(c[6] * rx + c[7] * ry + c[8] * rz) / rn, rn, g):
         return False
+    x[X_TOK + INN_ACCEL] = t + prm[R_ACC_LP]  # logged as out for -accel_lowpass s: the start check
     _level_reset(cfg, prm, x, flags, P, work, inn, acc, t, rx, ry, rz)
     # the mean goes on from the plain one; its bias sensitivity J stays the exponential
     # mean's, of the same samples (a sensitivity of zero would tell the filter that a gyro

@@ -60,9 +60,13 @@ def timed_out(prm, x, sensor, t):
 
 @njit(**_JIT_CORE)
 def log_reset(cfg, flags, inn, acc, work, x, sensor, t, size):
-    """Log a reset to ``sensor`` at t s of the given size (rad or m/s) and restart its clock."""
+    """Log a reset to ``sensor`` at t s of the given size (rad or m/s) and restart its clock.
+    Logged "out for": t minus the clock (NaN for a clock at minus infinity: retake_heading's,
+    or NaN: the heading absent; negative for the start check's, aid.gravity.start_check)."""
     nu = work[W_NU]
     out_for = t - x[X_TOK + sensor]
+    if math.isinf(out_for):
+        out_for = np.nan
     nu[0], nu[1], nu[2] = float(sensor), size, out_for
     _log(cfg, flags, inn, acc, nu, np.int64(INN_RESET), t, np.int64(3), np.nan, np.bool_(True))
     x[X_TOK + sensor] = t
@@ -168,8 +172,11 @@ def retake_heading(cfg, prm, x, flags, t):
     """After a reset that levelled the attitude: a heading held while the tilt was lost is
     no better than the tilt was, so the next field sample that disagrees with it by more
     than the magnetometer's LOST_HEADING turns it at once (windahrs.aid.mag.heading_reset),
-    and a reference field taken under the lost tilt (site field unknown) is taken again."""
-    x[X_TOK + INN_MAG] = min(x[X_TOK + INN_MAG], t - prm[R_RESET_TOUT] - 1e-6)
+    and a reference field taken under the lost tilt (site field unknown) is taken again. Its
+    clock is set to minus infinity: the reset is logged as out for NaN s, which
+    Estimate.warnings() says as "taken for the heading ... after a reset" (not as a field
+    off the state for reset_timeout, which nothing measured)."""
+    x[X_TOK + INN_MAG] = -np.inf
     if cfg[C_SITE_MAG] == 0:
         flags[S_MAGN] = 0
 

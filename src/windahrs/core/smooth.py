@@ -550,11 +550,13 @@ def _continued(run: Any, fw: SmoothRecord) -> InitialState | None:
 
 def _lost(t: F64, resets: dict[str, F64]) -> NDArray[np.bool_]:
     """(N,) whether IMU time t (s, in the pass's own time, any order) lies in the span a
-    reset of the pass says it was lost: from when the sensor began to disagree to the reset."""
+    reset of the pass says it was lost: from when the sensor began to disagree to the reset
+    (a negative time out: the start check's, the span of the plain mean it found off; NaN: a
+    heading taken from a sample, no span)."""
     lost = np.zeros(len(t), dtype=np.bool_)
     for rows in resets.values():
         for t_reset, _, out in rows:
-            lost |= (t >= t_reset - out) & (t < t_reset)
+            lost |= (t >= t_reset - abs(out)) & (t < t_reset)
     return lost
 
 
