@@ -24,8 +24,10 @@ heading wrong by tens of degrees tilts it. PX4's EKF2 fuses GNSS only once its y
 aligned (by the magnetometer, or in flight by its GSF yaw estimator), which windahrs does
 not have yet. Measured on the ANSFL quadrotor (no magnetometer) with its GNSS moved onto the
 IMU's clock by ``--align``, median tilt on the even / odd flights: [ins-wind] 5.43 / 4.84
-deg, [mekf] 4.69 / 6.40, better on one half and worse on the other (docs/RESULTS.md,
-sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's 10 deg). After the
+deg, [mekf] 4.69 / 6.40 when this was chosen, better on one half and worse on the other
+(docs/RESULTS.md, sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's
+10 deg); at stop 22, [ins-wind] 5.43 / 4.84 (all 16: 5.30), [mekf] 4.46 / 6.20 (all 16:
+4.54; docs/RESULTS.md section 23). After the
 run, an INS that fails the tilt check is replaced by the run without GNSS when that one fails
 it for less time (see :meth:`Auto.run`).
 
