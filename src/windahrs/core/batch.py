@@ -130,9 +130,11 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             inn[l_off[i] + o : l_off[i] + o + c] = s.inn[o : o + c]
             acc[l_off[i] + o : l_off[i] + o + c] = s.acc[o : o + c]
     e_off = _offsets([len(r.t_ev) for r in runs])
-    t_ev = np.concatenate([r.t_ev for r in runs])
-    kinds = np.concatenate([r.kinds for r in runs])
-    vals = np.concatenate([r.vals for r in runs])
+    E = int(e_off[-1])
+    t_ev, kinds, vals = pool.empty((E,)), pool.empty((E,), np.int64), pool.empty((E, 6))
+    np.concatenate([r.t_ev for r in runs], out=t_ev)
+    np.concatenate([r.kinds for r in runs], out=kinds)
+    np.concatenate([r.vals for r in runs], out=vals)
     n_off = _offsets([len(r.q) for r in runs])
     N = int(n_off[-1])
     q, bg = pool.empty((N, 4)), pool.empty((N, 3))
@@ -254,7 +256,7 @@ class _Chunk(NamedTuple):
 
 #: How often the Python thread looks for ended runs while none has, s (a 60 s flight of
 #: [mekf] takes about 10 ms on one thread).
-POLL_S = 2e-4
+POLL_S = 1e-3
 
 
 def _collect(est: CompiledEstimator, chunk: _Chunk, out: list[Estimate | None]) -> None:

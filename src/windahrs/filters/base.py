@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from windahrs.core import pool
 from windahrs.core.layout import _JIT
 from windahrs.estimate import Estimate, Innovations
 from windahrs.flight import Flight, Site
@@ -310,11 +311,13 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
     """All samples of the streams in ``use`` in processing order.
 
     Returns times (E,), kinds (E,) (EVENT_* codes) and values (E, 6) (IMU: w_b, f_b;
-    mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN).
+    mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN), in memory reused
+    from dropped events (:mod:`windahrs.core.pool`: a run drops its events when it ends,
+    and the next run's take no page faults).
     """
     streams = event_streams(flight, use)
     n = sum(len(streams[k]) for k in (0, 3, 5, 7))  # (the times)
-    t, kinds, vals = np.empty(n), np.empty(n, dtype=np.int64), np.empty((n, 6))
+    t, kinds, vals = pool.empty((n,)), pool.empty((n,), np.int64), pool.empty((n, 6))
     merge_into(*streams, t, kinds, vals)
     return t, kinds, vals
 
