@@ -179,11 +179,12 @@ def test_a_covariance_stride_as_in_run() -> None:
 
 
 def test_several_chunks_keep_the_flights_order() -> None:
-    """Six flights on one thread go in three chunks (their Python work overlapping the
+    """Six flights on one thread go in two chunks (their Python work overlapping the
     filters); each Estimate is still its own flight's."""
-    from windahrs.core.batch import chunk_size
+    from windahrs.core.batch import chunk_sizes
 
-    assert chunk_size(6, 1) == 2 and chunk_size(3, 2) == 4 and chunk_size(100, 2) == 25
+    assert chunk_sizes(6, 1) == [2, 4] and chunk_sizes(3, 2) == [3] and chunk_sizes(16, 2) == [4, 12]
+    assert chunk_sizes(100, 2) == [4, 16, 64, 16] and chunk_sizes(0, 2) == []
     base = _flights("fixedwing")
     flights = [base[2], base[0], base[1], base[1], base[2], base[0]]
     est = make_estimator("mekf")
@@ -191,3 +192,19 @@ def test_several_chunks_keep_the_flights_order() -> None:
     singles = {id(f): est.run(f) for f in base}
     for fl, b in zip(flights, batched, strict=True):
         _assert_same(singles[id(fl)], b)
+
+
+def test_an_error_of_the_compiled_loop_is_raised_not_waited_for(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Estimates are built as each run ends (its flag set by the parallel loop); a loop
+    that fails after some runs have ended raises its error from run_batch, in every chunk."""
+    from windahrs.core import batch
+
+    def failing(*args: object) -> None:
+        done = args[-1]
+        done[0] = 1  # type: ignore[index]  # (one run ended, the others never will)
+        raise RuntimeError("the loop failed")
+
+    monkeypatch.setattr(batch, "_run_packed", failing)
+    flights = list(_flights("fixedwing")) * 2
+    with pytest.raises(RuntimeError, match="the loop failed"):
+        make_estimator("mekf").run_batch(flights, threads=1)

@@ -50,7 +50,7 @@ from windahrs.estimate import Estimate
 from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
 from windahrs.flight import Flight
 
-__all__ = ["chunk_size", "run_batch"]
+__all__ = ["chunk_sizes", "run_batch"]
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -205,16 +205,18 @@ def run_batch(
         est.check(f)
     # longest first (by IMU samples), so that the last runs of a chunk are short
     by_length = sorted(range(len(flights)), key=lambda i: -len(flights[i].imu.t))
-    size = chunk_size(len(flights), n_threads)
     out: list[Estimate | None] = [None] * len(flights)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as helper:
         pending: _Chunk | None = None
-        for c0 in range(0, len(flights), size):
-            chunk = by_length[c0 : c0 + size]
+        c0 = 0
+        for size in chunk_sizes(len(flights), n_threads):
+            chunk, c0 = by_length[c0 : c0 + size], c0 + size
             args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every, reuse=False) for i in chunk])
-            done = np.zeros(len(chunk), dtype=np.int64)
-            running = helper.submit(_launch, args, done, n_threads)  # starts when the previous chunk is done
-            if pending is not None:
+            done, started = np.zeros(len(chunk), dtype=np.int64), threading.Event()
+            running = helper.submit(_launch, args, done, n_threads, started)  # after the previous chunk
+            if pending is None:  # the first: the helper thread takes the GIL to start it, now
+                started.wait()
+            else:
                 _collect(est, pending, out)
             pending = _Chunk(running, runs, chunk, done)
         if pending is not None:
@@ -222,25 +224,36 @@ def run_batch(
     return [e for e in out if e is not None]
 
 
-def chunk_size(n_runs: int, threads: int) -> int:
-    """How many runs go to the threads at once: about a quarter of the runs (so that the
-    Python work of the others overlaps them), at least two per thread (so that the
-    threads stay busy to the end of a chunk)."""
-    return max(2 * threads, -(-n_runs // 4), 1)
+def chunk_sizes(n_runs: int, threads: int) -> list[int]:
+    """How many runs go to the threads at a time, chunk after chunk: first two per thread
+    (so that the threads start after little Python work), then each chunk up to
+    :data:`GROWTH` times the one before (it is prepared while that one runs: a run's
+    preparation costs a small fraction of its filter, a twentieth for a 60 s flight of
+    [mekf]), so that few chunks end, each leaving threads idle while its last runs finish."""
+    sizes: list[int] = []
+    while sum(sizes) < n_runs:
+        sizes.append(min(n_runs - sum(sizes), GROWTH * sizes[-1] if sizes else 2 * threads))
+    return sizes
 
 
-def _launch(args: tuple[object, ...], done: I64, threads: int) -> None:
+#: Each chunk of runs is at most this many times the one before (:func:`chunk_sizes`).
+GROWTH = 4
+
+
+def _launch(args: tuple[object, ...], done: I64, threads: int, started: threading.Event) -> None:
     """The packed runs (:func:`_pack`) through :func:`_run_packed` on ``threads`` threads,
-    in the order given, each setting its flag in ``done`` when it ends (numba's thread
-    count and chunk size are per Python thread: set here, in the thread that makes the
-    call)."""
+    in the order given, each setting its flag in ``done`` when it ends; ``started`` set as
+    the call begins (or fails) (numba's thread count and chunk size are per Python thread:
+    set here, in the thread that makes the call)."""
     order = np.arange(len(args[0]), dtype=np.int64)  # type: ignore[arg-type]
     before = numba.get_num_threads()
-    numba.set_num_threads(threads)
     try:
+        numba.set_num_threads(threads)
         with numba.parallel_chunksize(1), _guard():
+            started.set()
             _run_packed(*args, order, done)
     finally:
+        started.set()
         numba.set_num_threads(before)
 
 
