@@ -338,7 +338,8 @@ def event_streams(flight: Flight, use: frozenset[str]) -> tuple[F64, ...]:
         gnss = (arr(flight.gnss.t), arr(flight.gnss.v_n))
     if "air" in use and flight.air is not None:
         a, nan = flight.air, np.full(len(flight.air.t), np.nan)
-        air = (arr(a.t), np.column_stack([a.tas, nan if a.aoa is None else a.aoa, nan if a.sideslip is None else a.sideslip]))
+        vanes = (nan if a.aoa is None else a.aoa, nan if a.sideslip is None else a.sideslip)
+        air = (arr(a.t), np.column_stack([a.tas, *vanes]))
     return (arr(flight.imu.t), arr(flight.imu.w_b), arr(flight.imu.f_b), *mag, *gnss, *air)
 
 
