@@ -179,12 +179,11 @@ def test_a_covariance_stride_as_in_run() -> None:
 
 
 def test_several_chunks_keep_the_flights_order() -> None:
-    """Six flights on one thread go in two chunks (their Python work overlapping the
+    """Six flights on one thread go in three chunks (their Python work overlapping the
     filters); each Estimate is still its own flight's."""
-    from windahrs.core.batch import chunk_sizes
+    from windahrs.core.batch import chunk_size
 
-    assert chunk_sizes(6, 1) == [2, 4] and chunk_sizes(3, 2) == [3] and chunk_sizes(16, 2) == [4, 12]
-    assert chunk_sizes(100, 2) == [4, 16, 64, 16] and chunk_sizes(0, 2) == []
+    assert chunk_size(6, 1) == 2 and chunk_size(3, 2) == 4 and chunk_size(100, 2) == 25
     base = _flights("fixedwing")
     flights = [base[2], base[0], base[1], base[1], base[2], base[0]]
     est = make_estimator("mekf")

@@ -50,7 +50,7 @@ from windahrs.estimate import Estimate
 from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
 from windahrs.flight import Flight
 
-__all__ = ["chunk_sizes", "run_batch"]
+__all__ = ["chunk_size", "run_batch"]
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -205,12 +205,12 @@ def run_batch(
         est.check(f)
     # longest first (by IMU samples), so that the last runs of a chunk are short
     by_length = sorted(range(len(flights)), key=lambda i: -len(flights[i].imu.t))
+    size = chunk_size(len(flights), n_threads)
     out: list[Estimate | None] = [None] * len(flights)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as helper:
         pending: _Chunk | None = None
-        c0 = 0
-        for size in chunk_sizes(len(flights), n_threads):
-            chunk, c0 = by_length[c0 : c0 + size], c0 + size
+        for c0 in range(0, len(flights), size):
+            chunk = by_length[c0 : c0 + size]
             args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every, reuse=False) for i in chunk])
             done, started = np.zeros(len(chunk), dtype=np.int64), threading.Event()
             running = helper.submit(_launch, args, done, n_threads, started)  # after the previous chunk
@@ -224,20 +224,11 @@ def run_batch(
     return [e for e in out if e is not None]
 
 
-def chunk_sizes(n_runs: int, threads: int) -> list[int]:
-    """How many runs go to the threads at a time, chunk after chunk: first two per thread
-    (so that the threads start after little Python work), then each chunk up to
-    :data:`GROWTH` times the one before (it is prepared while that one runs: a run's
-    preparation costs a small fraction of its filter, a twentieth for a 60 s flight of
-    [mekf]), so that few chunks end, each leaving threads idle while its last runs finish."""
-    sizes: list[int] = []
-    while sum(sizes) < n_runs:
-        sizes.append(min(n_runs - sum(sizes), GROWTH * sizes[-1] if sizes else 2 * threads))
-    return sizes
-
-
-#: Each chunk of runs is at most this many times the one before (:func:`chunk_sizes`).
-GROWTH = 4
+def chunk_size(n_runs: int, threads: int) -> int:
+    """How many runs go to the threads at once: about a quarter of the runs (so that the
+    Python work of the others overlaps them), at least two per thread (so that the
+    threads stay busy to the end of a chunk)."""
+    return max(2 * threads, -(-n_runs // 4), 1)
 
 
 def _launch(args: tuple[object, ...], done: I64, threads: int, started: threading.Event) -> None:
