@@ -34,6 +34,7 @@ numba caches parallel functions too).
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
@@ -51,6 +52,14 @@ from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_
 from windahrs.flight import Flight
 
 __all__ = ["chunk_size", "run_batch"]
+
+# The parallel loop's threads sleep as soon as they have no run left (OpenMP's passive
+# wait policy) instead of spinning for a while first (libgomp's default): the Python
+# thread that prepares the runs and builds the Estimates needs the core a spinning thread
+# holds (docs/SCALING.md, stop 22: the batched call's CPU time and wall time fell with it
+# on a shared 2-core machine). Set before numba loads its OpenMP layer (at the first
+# parallel call, which this module makes); a value already set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 @njit(parallel=True, nogil=True, **_JIT)
