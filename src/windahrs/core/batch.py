@@ -12,9 +12,12 @@ arrays are views of these buffers: all the Estimates together take the memory of
 done one by one, but one Estimate kept alone keeps its chunk's buffers alive (copy what
 you keep, or keep the results together). The flights go in chunks of about a quarter
 (:func:`chunk_size`): while one chunk's filters run, the Python work of the others (events
-merged and states encoded before, Estimates built and checked after) overlaps them. The
-runs go longest first and are handed to the threads one at a time, so a long flight does
-not leave a thread idle at the end of a chunk.
+merged and states encoded before, Estimates built and checked after) overlaps them, and
+each run's Estimate is built as soon as that run has ended (a flag the parallel loop sets
+per run), not once its whole chunk has, so that only the last run's is left after the
+threads are done. The runs go longest first and are handed to the threads one at a time,
+so a long flight does not leave a thread idle at the end of a chunk. The loop's idle
+threads sleep rather than spin (OpenMP's passive wait, below).
 
 Threads: ``threads`` runs at once (default: numba's current thread count, which is
 ``NUMBA_NUM_THREADS``, by default the number of cores, unless ``numba.set_num_threads``
@@ -203,8 +206,9 @@ def run_batch(
     The preparation (merging each flight's events, encoding its state) and the Estimates'
     checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
     other; they overlap the filters: the flights go in chunks (:func:`chunk_size`), and
-    while one chunk's filters run, the previous chunk's Estimates are built and the next
-    chunk is prepared. Every flight is checked for its sensors before any runs."""
+    while one chunk's filters run, the next chunk is prepared and each Estimate is built
+    as soon as its run has ended. Every flight is checked for its sensors before any
+    runs."""
     flights = list(flights)
     inits = initial_per_flight(initial, len(flights))
     n_threads = _threads(threads)
