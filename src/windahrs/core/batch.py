@@ -16,8 +16,7 @@ merged and states encoded before, Estimates built and checked after) overlaps th
 each run's Estimate is built as soon as that run has ended (a flag the parallel loop sets
 per run), not once its whole chunk has, so that only the last run's is left after the
 threads are done. The runs go longest first and are handed to the threads one at a time,
-so a long flight does not leave a thread idle at the end of a chunk. The loop's idle
-threads sleep rather than spin (OpenMP's passive wait, below).
+so a long flight does not leave a thread idle at the end of a chunk.
 
 Threads: ``threads`` runs at once (default: numba's current thread count, which is
 ``NUMBA_NUM_THREADS``, by default the number of cores, unless ``numba.set_num_threads``
@@ -37,7 +36,6 @@ numba caches parallel functions too).
 from __future__ import annotations
 
 import contextlib
-import os
 import threading
 import time
 from collections.abc import Sequence
@@ -56,14 +54,6 @@ from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_
 from windahrs.flight import Flight
 
 __all__ = ["chunk_size", "run_batch"]
-
-# The parallel loop's threads sleep as soon as they have no run left (OpenMP's passive
-# wait policy) instead of spinning for a while first (libgomp's default): the Python
-# thread that prepares the runs and builds the Estimates needs the core a spinning thread
-# holds (docs/SCALING.md, stop 22: the batched call's CPU time and wall time fell with it
-# on a shared 2-core machine). Set before numba loads its OpenMP layer (at the first
-# parallel call, which this module makes); a value already set is kept.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 @njit(parallel=True, nogil=True, **_JIT)
