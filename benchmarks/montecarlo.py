@@ -66,13 +66,13 @@ def kernel_timer(est: Any, flights: list[Any], threads: int, cov: str) -> Timer:
 
     def timer() -> tuple[float, float]:
         packed, runs = batch._pack([est.prepare(f, None, cov, reuse=False) for f in flights])
-        order = np.arange(len(runs), dtype=np.int64)
+        order, done = np.arange(len(runs), dtype=np.int64), np.zeros(len(runs), dtype=np.int64)
         before = numba.get_num_threads()
         try:
             numba.set_num_threads(threads)
             with numba.parallel_chunksize(1):
                 t0, c0 = time.perf_counter(), time.process_time()
-                batch._run_packed(*packed, order)
+                batch._run_packed(*packed, order, done)
                 return time.perf_counter() - t0, time.process_time() - c0
         finally:
             numba.set_num_threads(before)

@@ -191,3 +191,19 @@ def test_several_chunks_keep_the_flights_order() -> None:
     singles = {id(f): est.run(f) for f in base}
     for fl, b in zip(flights, batched, strict=True):
         _assert_same(singles[id(fl)], b)
+
+
+def test_an_error_of_the_compiled_loop_is_raised_not_waited_for(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Estimates are built as each run ends (its flag set by the parallel loop); a loop
+    that fails after some runs have ended raises its error from run_batch, in every chunk."""
+    from windahrs.core import batch
+
+    def failing(*args: object) -> None:
+        done = args[-1]
+        done[0] = 1  # type: ignore[index]  # (one run ended, the others never will)
+        raise RuntimeError("the loop failed")
+
+    monkeypatch.setattr(batch, "_run_packed", failing)
+    flights = list(_flights("fixedwing")) * 2
+    with pytest.raises(RuntimeError, match="the loop failed"):
+        make_estimator("mekf").run_batch(flights, threads=1)

@@ -12,9 +12,11 @@ arrays are views of these buffers: all the Estimates together take the memory of
 done one by one, but one Estimate kept alone keeps its chunk's buffers alive (copy what
 you keep, or keep the results together). The flights go in chunks of about a quarter
 (:func:`chunk_size`): while one chunk's filters run, the Python work of the others (events
-merged and states encoded before, Estimates built and checked after) overlaps them. The
-runs go longest first and are handed to the threads one at a time, so a long flight does
-not leave a thread idle at the end of a chunk.
+merged and states encoded before, Estimates built and checked after) overlaps them, and
+each run's Estimate is built as soon as that run has ended (a flag the parallel loop sets
+per run), not once its whole chunk has, so that only the last run's is left after the
+threads are done. The runs go longest first and are handed to the threads one at a time,
+so a long flight does not leave a thread idle at the end of a chunk.
 
 Threads: ``threads`` runs at once (default: numba's current thread count, which is
 ``NUMBA_NUM_THREADS``, by default the number of cores, unless ``numba.set_num_threads``
@@ -35,8 +37,10 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -58,7 +62,7 @@ def _run_packed(
     P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
     t_ev, kinds, vals, e_off,
     q, bg, v, w, n_off, cov, c_off, c_rows, dims,
-    order,
+    order, done,
 ):  # fmt: skip
     """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
     cfg, prm, x, flags (R, ...) and sup (R, 2, NMAX): the runs' fixed-size state records;
@@ -66,7 +70,9 @@ def _run_packed(
     w_cols[r]) at w_off[r]; inn (L, 5), acc (L,): its logs in rows l_off[r]:l_off[r + 1];
     t_ev, kinds, vals: its events in e_off[r]:e_off[r + 1]; q, bg, v, w: its outputs in
     rows n_off[r]:n_off[r + 1] (v, w: (0, 3) when not in the layout); cov (flat): its
-    (c_rows[r], dims[r], dims[r]) covariances at c_off[r]."""
+    (c_rows[r], dims[r], dims[r]) covariances at c_off[r]. done (R,): set to 1 when run r
+    has ended (after run_events' memory fence: its outputs are visible to every thread
+    then), so that its Estimate can be built while the others run."""
     for i in prange(order.shape[0]):
         r = order[i]
         n0, n1, e0, e1 = n_off[r], n_off[r + 1], e_off[r], e_off[r + 1]
@@ -88,6 +94,7 @@ def _run_packed(
             st, t_ev[e0:e1], kinds[e0:e1], vals[e0:e1],
             q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, True,
         )  # fmt: skip
+        done[r] = 1
 
 
 def _offsets(sizes: Sequence[int]) -> I64:
@@ -126,9 +133,11 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             inn[l_off[i] + o : l_off[i] + o + c] = s.inn[o : o + c]
             acc[l_off[i] + o : l_off[i] + o + c] = s.acc[o : o + c]
     e_off = _offsets([len(r.t_ev) for r in runs])
-    t_ev = np.concatenate([r.t_ev for r in runs])
-    kinds = np.concatenate([r.kinds for r in runs])
-    vals = np.concatenate([r.vals for r in runs])
+    E = int(e_off[-1])
+    t_ev, kinds, vals = pool.empty((E,)), pool.empty((E,), np.int64), pool.empty((E, 6))
+    np.concatenate([r.t_ev for r in runs], out=t_ev)
+    np.concatenate([r.kinds for r in runs], out=kinds)
+    np.concatenate([r.vals for r in runs], out=vals)
     n_off = _offsets([len(r.q) for r in runs])
     N = int(n_off[-1])
     q, bg = pool.empty((N, 4)), pool.empty((N, 3))
@@ -188,8 +197,9 @@ def run_batch(
     The preparation (merging each flight's events, encoding its state) and the Estimates'
     checks (:func:`~windahrs.filters.checks.checked`) run in Python, one flight after the
     other; they overlap the filters: the flights go in chunks (:func:`chunk_size`), and
-    while one chunk's filters run, the previous chunk's Estimates are built and the next
-    chunk is prepared. Every flight is checked for its sensors before any runs."""
+    while one chunk's filters run, the next chunk is prepared and each Estimate is built
+    as soon as its run has ended. Every flight is checked for its sensors before any
+    runs."""
     flights = list(flights)
     inits = initial_per_flight(initial, len(flights))
     n_threads = _threads(threads)
@@ -202,14 +212,17 @@ def run_batch(
     size = chunk_size(len(flights), n_threads)
     out: list[Estimate | None] = [None] * len(flights)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="windahrs-batch") as helper:
-        pending: tuple[Future[None], list[PreparedRun], list[int]] | None = None
+        pending: _Chunk | None = None
         for c0 in range(0, len(flights), size):
             chunk = by_length[c0 : c0 + size]
             args, runs = _pack([est.prepare(flights[i], inits[i], cov, cov_every, reuse=False) for i in chunk])
-            running = helper.submit(_launch, args, n_threads)  # starts when the previous chunk is done
-            if pending is not None:
+            done, started = np.zeros(len(chunk), dtype=np.int64), threading.Event()
+            running = helper.submit(_launch, args, done, n_threads, started)  # after the previous chunk
+            if pending is None:  # the first: the helper thread takes the GIL to start it, now
+                started.wait()
+            else:
                 _collect(est, pending, out)
-            pending = (running, runs, chunk)
+            pending = _Chunk(running, runs, chunk, done)
         if pending is not None:
             _collect(est, pending, out)
     return [e for e in out if e is not None]
@@ -222,30 +235,55 @@ def chunk_size(n_runs: int, threads: int) -> int:
     return max(2 * threads, -(-n_runs // 4), 1)
 
 
-def _launch(args: tuple[object, ...], threads: int) -> None:
+def _launch(args: tuple[object, ...], done: I64, threads: int, started: threading.Event) -> None:
     """The packed runs (:func:`_pack`) through :func:`_run_packed` on ``threads`` threads,
-    in the order given (numba's thread count and chunk size are per Python thread: set
-    here, in the thread that makes the call)."""
+    in the order given, each setting its flag in ``done`` when it ends; ``started`` set as
+    the call begins (or fails) (numba's thread count and chunk size are per Python thread:
+    set here, in the thread that makes the call)."""
     order = np.arange(len(args[0]), dtype=np.int64)  # type: ignore[arg-type]
     before = numba.get_num_threads()
-    numba.set_num_threads(threads)
     try:
+        numba.set_num_threads(threads)
         with numba.parallel_chunksize(1), _guard():
-            _run_packed(*args, order)
+            started.set()
+            _run_packed(*args, order, done)
     finally:
+        started.set()
         numba.set_num_threads(before)
 
 
-def _collect(
-    est: CompiledEstimator,
-    pending: tuple[Future[None], list[PreparedRun], list[int]],
-    out: list[Estimate | None],
-) -> None:
-    """Wait for a chunk's filters and put its Estimates at their flights' places."""
-    running, runs, chunk = pending
-    running.result()
-    for i, r in zip(chunk, runs, strict=True):
-        out[i] = est.finish(r)
+class _Chunk(NamedTuple):
+    """A chunk of runs handed to the helper thread: its call (:func:`_launch`), the runs
+    (views of its packed buffers), their flights' places, their flags (set as each ends)."""
+
+    running: Future[None]
+    runs: list[PreparedRun]
+    places: list[int]
+    done: I64
+
+
+#: How often the Python thread looks for ended runs while none has, s (a 60 s flight of
+#: [mekf] takes about 10 ms on one thread).
+POLL_S = 1e-3
+
+
+def _collect(est: CompiledEstimator, chunk: _Chunk, out: list[Estimate | None]) -> None:
+    """Put a chunk's Estimates at their flights' places, each built as soon as its run has
+    ended (while the chunk's other runs go on), and raise the compiled loop's error if it
+    had one."""
+    left = list(range(len(chunk.runs)))
+    while left:
+        ended = [j for j in left if chunk.done[j]]
+        if not ended and chunk.running.done():
+            chunk.running.result()  # (an error of the loop: raised here)
+            ended = list(left)  # (else every run has ended)
+        if not ended:
+            time.sleep(POLL_S)  # (a sleep costs a third of the CPU time of a wait on the Future)
+            continue
+        for j in ended:
+            out[chunk.places[j]] = est.finish(chunk.runs[j])
+            left.remove(j)
+    chunk.running.result()
 
 
 #: Serialises the parallel calls where numba's threading layer cannot take concurrent ones.

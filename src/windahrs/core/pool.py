@@ -22,6 +22,7 @@ covariance around the caches (non-temporal stores; plain Python forms for
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from llvmlite import ir
@@ -55,17 +56,17 @@ class _Block:
             free.setdefault(n, []).append(self.mem)
 
 
-def empty(shape: tuple[int, ...]) -> NDArray[np.float64]:
-    """``np.empty(shape)`` (float64), its memory reused from a freed array of the same size
-    when there is one (see the module)."""
+def empty(shape: tuple[int, ...], dtype: type[np.float64] | type[np.int64] = np.float64) -> NDArray[Any]:
+    """``np.empty(shape, dtype)`` (float64 or int64), its memory reused from a freed array
+    of the same size when there is one (see the module)."""
     n = math.prod(shape) * 8
     if n < MIN_BYTES:
-        return np.empty(shape)
+        return np.empty(shape, dtype)
     try:
         mem = _free.get(n, []).pop()
     except IndexError:
         mem = np.empty(n, np.uint8)
-    return np.asarray(_Block(mem)).view(np.float64).reshape(shape)
+    return np.asarray(_Block(mem)).view(dtype).reshape(shape)
 
 
 def stream_store3(arr: NDArray[np.float64], i: int, j: int, k: int, val: float) -> None:

@@ -23,8 +23,11 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
+from windahrs.core import pool
+from windahrs.core.layout import _JIT
 from windahrs.estimate import Estimate, Innovations
 from windahrs.flight import Flight, Site
 from windahrs.rotation import dcm_from_quat, quat_from_euler
@@ -308,38 +311,63 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
     """All samples of the streams in ``use`` in processing order.
 
     Returns times (E,), kinds (E,) (EVENT_* codes) and values (E, 6) (IMU: w_b, f_b;
-    mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN).
+    mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN), in memory reused
+    from dropped events (:mod:`windahrs.core.pool`: a run drops its events when it ends,
+    and the next run's take no page faults).
     """
-    imu = flight.imu
-    # (stream times, EVENT_* code, its columns); the IMU's two blocks written in place
-    parts: list[tuple[F64, int, tuple[F64, ...]]] = [(imu.t, EVENT_IMU, (imu.w_b, imu.f_b))]
+    streams = event_streams(flight, use)
+    n = sum(len(streams[k]) for k in (0, 3, 5, 7))  # (the times)
+    t, kinds, vals = pool.empty((n,)), pool.empty((n,), np.int64), pool.empty((n, 6))
+    merge_into(*streams, t, kinds, vals)
+    return t, kinds, vals
+
+
+def event_streams(flight: Flight, use: frozenset[str]) -> tuple[F64, ...]:
+    """The arguments of :func:`merge_into` before its outputs: the flight's streams in
+    ``use`` as contiguous float64 arrays, (0,) and (0, 3) for a stream left out; the air
+    data as (n, 3) columns tas, aoa, sideslip (NaN for vanes it lacks)."""
+
+    def arr(a: object) -> F64:
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    none1, none3 = np.empty(0), np.empty((0, 3))
+    mag, gnss, air = (none1, none3), (none1, none3), (none1, none3)
     if "mag" in use and flight.mag is not None:
-        parts.append((flight.mag.t, EVENT_MAG, (flight.mag.mag_b,)))
+        mag = (arr(flight.mag.t), arr(flight.mag.mag_b))
     if "gnss" in use and flight.gnss is not None:
-        parts.append((flight.gnss.t, EVENT_GNSS, (flight.gnss.v_n,)))
+        gnss = (arr(flight.gnss.t), arr(flight.gnss.v_n))
     if "air" in use and flight.air is not None:
-        a = flight.air
-        n = len(a.t)
-        aoa = a.aoa if a.aoa is not None else np.full(n, np.nan)
-        beta = a.sideslip if a.sideslip is not None else np.full(n, np.nan)
-        parts.append((a.t, EVENT_AIR, (np.column_stack([a.tas, aoa, beta]),)))
-    t = np.concatenate([p[0] for p in parts])
-    kinds = np.concatenate([np.full(len(p[0]), p[1], dtype=np.int64) for p in parts])
-    vals = np.empty((len(t), 6))
-    row = 0
-    for p in parts:
-        r1, col = row + len(p[0]), 0
-        for block in p[2]:
-            vals[row:r1, col : col + block.shape[1]] = block
-            col += block.shape[1]
-        vals[row:r1, col:] = np.nan
-        row = r1
-    # by time, and at equal times in the kinds' order: the parts are concatenated in that
-    # order (EVENT_IMU first) and the sort is stable (each part nearly sorted already: the
-    # stable sort merges the runs, several times faster than a lexsort on (kinds, t));
-    # take() gathers the rows several times faster than fancy indexing
-    order = np.argsort(t, kind="stable")
-    return t.take(order), kinds.take(order), vals.take(order, axis=0)
+        a, nan = flight.air, np.full(len(flight.air.t), np.nan)
+        vanes = (nan if a.aoa is None else a.aoa, nan if a.sideslip is None else a.sideslip)
+        air = (arr(a.t), np.column_stack([a.tas, *vanes]))
+    return (arr(flight.imu.t), arr(flight.imu.w_b), arr(flight.imu.f_b), *mag, *gnss, *air)
+
+
+@njit(nogil=True, **_JIT)
+def merge_into(t_imu, w_b, f_b, t_mag, mag_b, t_gnss, v_n, t_air, air, t, kinds, vals):
+    """Merge the streams (:func:`event_streams`) into t (E,), kinds (E,) and vals (E, 6)
+    (E: all their samples), by time, and at equal times in the kinds' order (EVENT_IMU
+    first): each stream's time is strictly increasing (windahrs.flight), so taking the
+    earliest next sample of the four, the lowest kind at a tie, is that order."""
+    times = (t_imu, t_mag, t_gnss, t_air)
+    nxt = np.zeros(4, dtype=np.int64)
+    for e in range(t.shape[0]):
+        k = -1
+        for s in range(4):
+            if nxt[s] < times[s].shape[0] and (k < 0 or times[s][nxt[s]] < times[k][nxt[k]]):
+                k = s
+        i = nxt[k]
+        nxt[k] = i + 1
+        t[e] = times[k][i]
+        kinds[e] = k  # (the EVENT_* codes are the order of times)
+        row = vals[e]
+        if k == EVENT_IMU:
+            for c in range(3):
+                row[c], row[3 + c] = w_b[i, c], f_b[i, c]
+            continue
+        src = mag_b if k == EVENT_MAG else v_n if k == EVENT_GNSS else air
+        for c in range(3):
+            row[c], row[3 + c] = src[i, c], np.nan
 
 
 class Estimator(ABC):
