@@ -148,7 +148,9 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
     (compensated) sample f since the start, x[X_RM] (x[X_NRM] samples), turns with the body
     as the mean does. Once it spans accel_lowpass, VQF's start of its low-pass filters, it is
     held against the state's gravity by the test of the lost-gravity reset (knows_gravity:
-    45 deg, or 25 deg at gravity's length); failing it, the filter is levelled to it (gyro
+    45 deg, or 25 deg at gravity's length; the plain mean's own length, since its direction
+    and its length average the same samples: an acceleration that averaged out of the one
+    averaged out of the other); failing it, the filter is levelled to it (gyro
     bias reset, the mean restarted from it) at once rather than after reset_timeout. Then
     the check ends. Returns whether it reset (the sample is then not fused). c: C_nb
     row-major of the state."""
