@@ -70,7 +70,7 @@ from windahrs.core.layout import (
     X_TOK,
     X_VAIR,
 )
-from windahrs.core.predict import steady_gain, track_accel_noise
+from windahrs.core.predict import add_to_mean, steady_gain, track_accel_noise
 from windahrs.core.quat import (
     _dcm9,
 )
@@ -154,12 +154,9 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
     bias reset, the mean restarted from it) at once rather than after reset_timeout. Then
     the check ends. Returns whether it reset (the sample is then not fused). c: C_nb
     row-major of the state."""
-    n = x[X_NRM]
-    b = 1.0 / (n + 1.0)
-    x[X_RM] = x[X_RM] + b * (fx - x[X_RM])
-    x[X_RM + 1] = x[X_RM + 1] + b * (fy - x[X_RM + 1])
-    x[X_RM + 2] = x[X_RM + 2] + b * (fz - x[X_RM + 2])
-    x[X_NRM] = n + 1.0
+    n = x[X_NRM] + 1.0
+    add_to_mean(x, np.int64(X_RM), n, fx, fy, fz)
+    x[X_NRM] = n
     if t - x[X_TINIT] < prm[R_ACC_LP]:
         return False
     x[X_NRM] = 0.0  # checked once

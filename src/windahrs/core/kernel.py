@@ -229,6 +229,7 @@ from windahrs.core.predict import (
     _predict_add,
     _predict_es,
     add_held_sample_noise,
+    add_to_mean,
     track_accel_noise,
 )
 from windahrs.core.quat import (
@@ -372,8 +373,7 @@ def _window_add(x, flags, t, row):
         _rotate_into(_turn(row[0], row[1], row[2], dt), x, np.int64(X_FWIN))
     n = x[X_NWIN] + 1.0
     x[X_NWIN] = n
-    for a in range(3):
-        x[X_FWIN + a] += (row[3 + a] - x[X_FWIN + a]) / n
+    add_to_mean(x, np.int64(X_FWIN), n, row[3], row[4], row[5])
 
 
 

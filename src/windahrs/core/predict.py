@@ -93,6 +93,14 @@ def steady_gain(x, i, dt, tau):
 
 
 @njit(inline="always", **_JIT_CORE)
+def add_to_mean(x, i0, n, v0, v1, v2):
+    """x[i0:i0+3], the plain mean of n - 1 samples, after the n-th, v."""
+    x[i0] += (v0 - x[i0]) / n
+    x[i0 + 1] += (v1 - x[i0 + 1]) / n
+    x[i0 + 2] += (v2 - x[i0 + 2]) / n
+
+
+@njit(inline="always", **_JIT_CORE)
 def track_accel_noise(cfg, prm, x, dt):
     """The accelerometer's noise on line, from the differences of consecutive samples
     (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
