@@ -62,7 +62,7 @@ def _run_packed(
     P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
     t_ev, kinds, vals, e_off,
     q, bg, v, w, n_off, cov, c_off, c_rows, dims,
-    order, done,
+    order, done, rec,
 ):  # fmt: skip
     """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
     cfg, prm, x, flags (R, ...) and sup (R, 2, NMAX): the runs' fixed-size state records;
@@ -72,7 +72,9 @@ def _run_packed(
     rows n_off[r]:n_off[r + 1] (v, w: (0, 3) when not in the layout); cov (flat): its
     (c_rows[r], dims[r], dims[r]) covariances at c_off[r]. done (R,): set to 1 when run r
     has ended (after run_events' memory fence: its outputs are visible to every thread
-    then), so that its Estimate can be built while the others run."""
+    then), so that its Estimate can be built while the others run. rec: True, given at run
+    time: a literal True here would be typed Literal[bool] and make numba compile a second
+    run_events (30-50 s cold) instead of reusing the streamer's and the single run's."""
     for i in prange(order.shape[0]):
         r = order[i]
         n0, n1, e0, e1 = n_off[r], n_off[r + 1], e_off[r], e_off[r + 1]
@@ -92,7 +94,7 @@ def _run_packed(
         out_cov = cov[c_off[r] : c_off[r + 1]].reshape((c_rows[r], d, d))
         run_events(
             st, t_ev[e0:e1], kinds[e0:e1], vals[e0:e1],
-            q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, True,
+            q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, rec,
         )  # fmt: skip
         done[r] = 1
 
@@ -246,7 +248,7 @@ def _launch(args: tuple[object, ...], done: I64, threads: int, started: threadin
         numba.set_num_threads(threads)
         with numba.parallel_chunksize(1), _guard():
             started.set()
-            _run_packed(*args, order, done)
+            _run_packed(*args, order, done, True)
     finally:
         started.set()
         numba.set_num_threads(before)

@@ -383,7 +383,10 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b)
         sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_GRAV]
         var = sw * sw + prm[R_ACC_UNIT2]
     sensor = np.int64(INN_ACCEL)
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, f_b / _norm3(f_b), _UP_N, var)
+    # _UP_N copied: numba types a global array read-only, and a read-only r_n would compile
+    # _update_vector a second time (8 s cold) beside the magnetometer's.
+    up = _UP_N.copy()
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, f_b / _norm3(f_b), up, var)
 
 
 @njit(**_JIT)

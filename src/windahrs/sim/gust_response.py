@@ -70,7 +70,10 @@ def fly_attitude_held(
     dt = np.empty(n)
     dt[1:] = np.diff(t)
     dt[0] = dt[1] if n > 1 else 0.0
-    dv = _implicit_response(np.ascontiguousarray(m), np.ascontiguousarray(wd_n), dt, wd_n[0].copy())
+    # writable C arrays: a read-only one (a contiguous broadcast view) would compile another
+    # specialisation of the loop
+    m_c, wd_c = np.require(m, requirements=("C", "W")), np.require(wd_n, np.float64, ("C", "W"))
+    dv = _implicit_response(m_c, wd_c, dt, wd_n[0].copy())
     C_nb = dcm_from_quat(q_nb)
     v_n = C_nb @ v_air_nom_b + mean_wind_n + dv
     a_n = np.empty((n, 3))
