@@ -143,3 +143,24 @@ def test_python_caller_gets_the_pcrb_ratios_by_default() -> None:
     assert "5 m/s | gravity" in res.bounds
     none = run_reproduction(1, duration=1.0, cases=cases[:1], bound_fn=None)
     assert none.cases[0]["pcrb_ratio"] is None and none.bounds == {}
+
+
+def test_a_cluster_is_warmed_once_per_compiled_family_before_the_work() -> None:
+    """With a ``submit`` (a cluster), each family of estimators sharing a compiled loop runs
+    once on a short flight first, and only then is the real work submitted: the additive
+    filters (paper, paper-nowind, ekf) once, the error-state ones (mekf, ins-wind) once."""
+    from windahrs.experiments.cluster import serial_submit
+    from windahrs.experiments.reproduce import Case, _flight_task, _warm_task, run_reproduction
+
+    cases = [Case(5.0, f, "oracle" if f == "paper" else "none") for f in ("paper", "mekf", "paper-nowind", "ekf")]
+    cases.append(Case(5.0, "ins-wind", "estimated"))
+    calls: list[tuple[object, ...]] = []
+
+    def put(fn: object, *args: object) -> object:
+        calls.append((fn, *args))
+        return serial_submit(fn, *args)  # type: ignore[arg-type]
+
+    run_reproduction(1, duration=1.0, cases=cases, bound_fn=None, submit=put)
+    warm = [c for c in calls if c[0] is _warm_task]
+    assert [c[1].filter for c in warm] == ["paper", "mekf"]  # type: ignore[union-attr]
+    assert calls[: len(warm)] == warm and any(c[0] is _flight_task for c in calls[len(warm):])

@@ -45,6 +45,7 @@ __all__ = [
     "MissingSensorError",
     "StateView",
     "Streamer",
+    "loop_family",
     "merge_events",
     "triad",
 ]
@@ -456,6 +457,16 @@ class Estimator(ABC):
         t_ev, kinds, vals = merge_events(flight, has)
         s = self.streamer(flight.site, initial=initial, has=has)
         return replay(self, s, flight, t_ev, kinds, vals)
+
+
+def loop_family(est: Estimator) -> type:
+    """The class whose compiled loop ``est`` runs: the additive filters share one
+    (AdditiveEstimator), the error-state ones another (CompiledEstimator); an estimator
+    derived from Estimator directly is its own. Two estimators of one family compile the
+    same numba functions, so a cluster warming its workers' cache compiles each family once,
+    on one worker (:func:`windahrs.experiments.reproduce.run_reproduction`)."""
+    mro = type(est).__mro__
+    return mro[mro.index(Estimator) - 1]
 
 
 def kept_cov(est: Estimate, cov: CovRecord) -> Estimate:
