@@ -59,6 +59,7 @@ def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
 
     from windahrs.core import kernel as K
     from windahrs.core.layout import N_SENSORS
+    from windahrs.core.smooth import no_smoothing
     from windahrs.filters.base import merge_events
 
     has = frozenset(s for s in ("imu", "mag", "gnss", "air") if getattr(flight, s) is not None) & est.uses
@@ -74,7 +75,7 @@ def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
             q, bg, v, w = (np.empty((N, k)) for k in (4, 3, 3, 3))
             cov = np.empty((N, d, d))
             t0 = time.perf_counter()
-            K.run_events(st, t_ev, kinds, vals, q, bg, v, w, cov, rec)
+            K.run_events(st, t_ev, kinds, vals, q, bg, v, w, cov, rec, no_smoothing())
             best = min(best, time.perf_counter() - t0)
         out[rec] = best
     return out[True], out[False]

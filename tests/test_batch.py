@@ -199,7 +199,7 @@ def test_an_error_of_the_compiled_loop_is_raised_not_waited_for(monkeypatch: pyt
     from windahrs.core import batch
 
     def failing(*args: object) -> None:
-        done = args[-2]  # (..., order, done, rec)
+        done = args[-3]  # (..., order, done, rec, sm)
         done[0] = 1  # type: ignore[index]  # (one run ended, the others never will)
         raise RuntimeError("the loop failed")
 

@@ -49,6 +49,7 @@ from numba import njit, prange
 from windahrs.core import pool
 from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
 from windahrs.core.layout import _JIT, C_OFF, I64, L_CNT, N_SENSORS, KernelState
+from windahrs.core.smooth import no_smoothing
 from windahrs.estimate import Estimate
 from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
 from windahrs.flight import Flight
@@ -62,7 +63,7 @@ def _run_packed(
     P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
     t_ev, kinds, vals, e_off,
     q, bg, v, w, n_off, cov, c_off, c_rows, dims,
-    order, done, rec,
+    order, done, rec, sm,
 ):  # fmt: skip
     """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
     cfg, prm, x, flags (R, ...) and sup (R, 2, NMAX): the runs' fixed-size state records;
@@ -74,7 +75,8 @@ def _run_packed(
     has ended (after run_events' memory fence: its outputs are visible to every thread
     then), so that its Estimate can be built while the others run. rec: True, given at run
     time: a literal True here would be typed Literal[bool] and make numba compile a second
-    run_events (30-50 s cold) instead of reusing the streamer's and the single run's."""
+    run_events (30-50 s cold) instead of reusing the streamer's and the single run's. sm: the
+    empty smoothing record (:func:`windahrs.core.smooth.no_smoothing`), for the same reason."""
     for i in prange(order.shape[0]):
         r = order[i]
         n0, n1, e0, e1 = n_off[r], n_off[r + 1], e_off[r], e_off[r + 1]
@@ -94,7 +96,7 @@ def _run_packed(
         out_cov = cov[c_off[r] : c_off[r + 1]].reshape((c_rows[r], d, d))
         run_events(
             st, t_ev[e0:e1], kinds[e0:e1], vals[e0:e1],
-            q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, rec,
+            q[n0:n1], bg[n0:n1], v[n0:n1], w[n0:n1], out_cov, rec, sm,
         )  # fmt: skip
         done[r] = 1
 
@@ -248,7 +250,7 @@ def _launch(args: tuple[object, ...], done: I64, threads: int, started: threadin
         numba.set_num_threads(threads)
         with numba.parallel_chunksize(1), _guard():
             started.set()
-            _run_packed(*args, order, done, True)
+            _run_packed(*args, order, done, True, no_smoothing())
     finally:
         started.set()
         numba.set_num_threads(before)

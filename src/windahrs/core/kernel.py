@@ -239,7 +239,7 @@ from windahrs.core.quat import (
     _xi_into,
 )
 from windahrs.core.reset import attitude_cov_about_vertical, set_attitude_cov
-from windahrs.core.smooth import record_post, record_pre
+from windahrs.core.smooth import no_smoothing, record_post, record_pre
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
     COV_RECORDS,
@@ -643,7 +643,7 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
 
 
 @njit(**_JIT_CORE)
-def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec, sm=None):
+def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec, sm):
     """The event loop (filters.base.replay, compiled): feed the merged events (t_ev (E,),
     kinds (E,), vals (E, 6)), skip and count NaN samples, and (rec) record for IMU sample k
     the state after every event with t <= t_imu[k] (before the next IMU sample).
@@ -651,9 +651,11 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
     The streamer calls it with one event at a time and rec=False: the per-kind step
     functions are inlined into this one compiled function, which batch and stream share
     (and numba compiles the filter once). sm: the smoother's record
-    (:class:`windahrs.core.smooth.SmoothRecord`, with rec), or None: a normal run, whose
-    compiled loop has no smoothing code (numba prunes the branches on ``sm is None``)."""
+    (:class:`windahrs.core.smooth.SmoothRecord`, with rec), or one without rows
+    (:func:`windahrs.core.smooth.no_smoothing`): a normal run. Every caller passes the same
+    types, so numba compiles this loop once for runs, batches, streams and the smoother."""
     k = np.int64(-1)
+    smooth = sm.aux.shape[0] > 0
     cfg, prm, x, flags, P, work, sup, inn, acc = st  # once: each extraction costs refcounting
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
@@ -662,7 +664,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
         row = vals[i]
         if kind == EVENT_IMU:
             k += 1
-            if sm is not None:
+            if smooth:
                 record_pre(sm, k, x, flags, t, row, sample_ok(kind, row))
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
@@ -677,7 +679,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
         # IMU sample k gets the state after the last event before the next IMU sample
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
-            if sm is not None:
+            if smooth:
                 record_post(sm, k, cfg, x, flags, P)
     if rec:  # (the covariance was recorded around the caches: visible to every thread now)
         stream_fence()
@@ -950,11 +952,12 @@ class CompiledStreamer(EventStreamer):
             np.empty((0, 3)),
             np.empty((0, 0, 0)),
         )
+        self._no_sm = no_smoothing()
 
     def _step(self, kind: int, t: float) -> None:
         if (self._st.flags[L_CNT : L_CNT + N_SENSORS] >= self._st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
             self._st = _grow(self._st)  # an event logs at most one row per sensor
-        run_events(self._st, self._t, self._kind, self._row, *self._none, False)
+        run_events(self._st, self._t, self._kind, self._row, *self._none, False, self._no_sm)
 
     def innovations(self) -> dict[str, Innovations]:
         return _innovations(self._st, self._mag_fusion)
@@ -1027,7 +1030,7 @@ class CompiledEstimator(Estimator):
         every cov_every-th IMU sample (default: every sample up to
         :data:`~windahrs.core.layout.COV_BUDGET`, :func:`~windahrs.core.layout.cov_stride`)."""
         run = self.prepare(flight, initial, cov_every=cov_every)
-        run_events(run.st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True)
+        run_events(run.st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True, no_smoothing())
         return self.finish(run)
 
     def run_batch(
