@@ -63,6 +63,7 @@ def kernel_timer(est: Any, flights: list[Any], threads: int, cov: str) -> Timer:
     import numpy as np
 
     from windahrs.core import batch
+    from windahrs.core.smooth import no_smoothing
 
     def timer() -> tuple[float, float]:
         packed, runs = batch._pack([est.prepare(f, None, cov, reuse=False) for f in flights])
@@ -72,7 +73,7 @@ def kernel_timer(est: Any, flights: list[Any], threads: int, cov: str) -> Timer:
             numba.set_num_threads(threads)
             with numba.parallel_chunksize(1):
                 t0, c0 = time.perf_counter(), time.process_time()
-                batch._run_packed(*packed, order, done)
+                batch._run_packed(*packed, order, done, True, no_smoothing())
                 return time.perf_counter() - t0, time.process_time() - c0
         finally:
             numba.set_num_threads(before)
