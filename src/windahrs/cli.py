@@ -21,6 +21,7 @@ output file), numbers ``_number`` (finite), seeds ``_seed`` and run counts ``_co
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 import os
@@ -32,7 +33,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, NoReturn, TextIO
 
 import numpy as np
 from tqdm import tqdm
@@ -1184,7 +1185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     retry = signal.signal(signal.SIGALRM, on_sigint) if previous is not None and hasattr(signal, "setitimer") else None
     previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), compile_notice(sys.stderr):
             warnings.simplefilter("always", EstimatorWarning)  # each flight's, not the first only
             warnings.simplefilter("always", RepairWarning)
             warnings.showwarning = _one_line_warning(args.command)
@@ -1216,6 +1217,35 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGALRM, retry)
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
+
+
+#: Said once per command at a terminal when numba starts compiling (not on a load from its cache).
+COMPILE_NOTICE = (
+    "windahrs: compiling the filters for this machine (numba, first run only: up to a minute per "
+    "family of filters, then cached) ..."
+)
+
+
+def compile_notice(stream: TextIO) -> contextlib.AbstractContextManager[object]:
+    """While active, :data:`COMPILE_NOTICE` is written to ``stream`` the first time numba
+    compiles (a fresh install's first run of a filter waits 10-60 s with nothing else to
+    show), when ``stream`` is a terminal; through tqdm, above any progress bar."""
+    if not (hasattr(stream, "isatty") and stream.isatty()):
+        return contextlib.nullcontext()
+    from numba.core import event
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, ev: object) -> None:
+            if not self.said:
+                self.said = True
+                tqdm.write(COMPILE_NOTICE, file=stream)
+
+        def on_end(self, ev: object) -> None:
+            pass
+
+    return event.install_listener("numba:compile", Notice())
 
 
 def _main_thread() -> bool:
