@@ -12,5 +12,6 @@ fi
 python3 -m pip install --quiet --disable-pip-version-check -e ".[test]"
 # One pytest worker per core (pytest-xdist): on a fresh clone most of the time is numba
 # compiling the filters into its cache, and the workers compile different ones side by side
-# (on 2 cores, cold: 436 -> 274 s). Arguments come after, so "-n 0" runs in one process.
+# (on 2 cores, a fresh clone's .ci/run: 8 min 25 s -> 3 min 59 s, docs/RESULTS.md 24).
+# Arguments come after, so "-n 0" runs in one process.
 python3 -m pytest -n auto "$@"

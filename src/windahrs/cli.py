@@ -458,6 +458,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             res = run_reproduction(runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs)
         else:
             with open_client(args.scheduler, None if args.scheduler else workers) as client:
+                # the workers first run one short flight per compiled family (reproduce.warm_up):
+                # a load from numba's cache, or on a first run minutes of compiling, said here as
+                # the compile notice cannot be from the worker processes
+                bar.set_postfix_str("workers loading the filters (compiling them on a first run: 1-3 min)")
+                bar.refresh()
                 res = run_reproduction(
                     runs, duration=args.duration, cases=cases, progress=step, nees_runs=nees_runs,
                     submit=functools.partial(client.submit, pure=False),
