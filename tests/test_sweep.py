@@ -338,3 +338,23 @@ def test_workers_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str], args
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(message in e for e in err)
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
+
+
+def test_warm_families_runs_the_first_estimator_of_each_family_once_before_returning() -> None:
+    """cluster.warm_families: one call per compiled family (the additive filters share one,
+    the error-state ones another), all finished when it returns."""
+    from windahrs.experiments.cluster import serial_submit, warm_families
+    from windahrs.filters.registry import make_estimator
+
+    ran: list[str] = []
+    items = [(make_estimator(n), ran.append, (n,)) for n in ("paper", "mekf", "ekf", "ins-wind", "usque", "ukf")]
+    warm_families(serial_submit, items)  # type: ignore[arg-type]
+    assert ran == ["paper", "mekf", "usque"]
+
+
+def test_sweep_warm_task_runs_what_can_run_and_leaves_the_rest_to_its_tasks() -> None:
+    from windahrs.experiments.sweep import EstimatorSpec, ScenarioSpec, _warm_task
+
+    quad = ScenarioSpec("quadrotor", 5.0, True, 20.0, None)
+    _warm_task(EstimatorSpec("mekf", (), "mekf"), quad)
+    _warm_task(EstimatorSpec("mekf-air", (), "mekf-air"), quad)  # no air data on a quadrotor: skipped

@@ -19,8 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
-from windahrs.experiments.cluster import Submit, serial_submit
-from windahrs.filters.base import loop_family
+from windahrs.experiments.cluster import Submit, serial_submit, warm_families
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
 from windahrs.metrics import attitude_errors, chi2_band, convergence_index, nees_attitude
@@ -286,18 +285,9 @@ def run_reproduction(
 
 
 def warm_up(put: Submit, cases: Sequence[Case]) -> None:
-    """Compile each estimator family's loop once, side by side on a cluster's workers, before
-    the work: one 1 s flight per family (:func:`windahrs.filters.base.loop_family`), its
-    compiled functions written to numba's cache, from which the other workers on the machine
-    load them. Without it every worker compiles every filter on its first flight (on 2 cores,
-    a cold ``reproduce --quick`` spent 218 s, two thirds of it compiling the same code twice);
-    on a warm cache each task takes well under a second."""
-    first: dict[type, Case] = {}
-    for c in cases:
-        first.setdefault(loop_family(_estimator(c)), c)
-    handles = [put(_warm_task, c) for c in first.values()]
-    for h in handles:
-        h.result()
+    """Each compiled family of ``cases``' estimators run once on a 1 s flight, before the
+    work (:func:`windahrs.experiments.cluster.warm_families`)."""
+    warm_families(put, [(_estimator(c), _warm_task, (c,)) for c in cases])
 
 
 def _warm_task(c: Case) -> None:

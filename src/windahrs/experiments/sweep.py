@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import itertools
 import json
@@ -47,6 +48,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from windahrs.experiments.cluster import warm_families
 
 __all__ = [
     "SCENARIO_KEYS", "EstimatorSpec", "ResultStore", "RunTask", "ScenarioSpec", "SweepSpec", "SweepSummary",
@@ -584,6 +587,18 @@ class SweepSummary:
     seconds: float
 
 
+def _warm_task(est: EstimatorSpec, scenario: ScenarioSpec) -> None:
+    """``est`` on a 1 s flight of ``scenario`` (:func:`warm_families`); an estimator that
+    cannot run on it (a sensor the vehicle lacks) is left to its own tasks, which record why."""
+    from windahrs.filters.base import MissingSensorError
+    from windahrs.sim.scenario import MIN_DURATION_S, simulate
+
+    short = dataclasses.replace(scenario, duration=MIN_DURATION_S)
+    with contextlib.suppress(MissingSensorError), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est.build().run(simulate(short.build(), np.random.default_rng(0)))
+
+
 def run_sweep(
     spec: SweepSpec,
     out: str | os.PathLike[str],
@@ -626,6 +641,10 @@ def run_sweep(
         else:
             from distributed import as_completed
 
+            if tasks:  # each compiled family once, on one worker, before the work (as reproduce)
+                scenario = tasks[0].scenario
+                warm_families(functools.partial(client.submit, pure=False),
+                              [(est.build(), _warm_task, (est, scenario)) for est in spec.estimators])
             threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
             size = chunk_size(len(tasks), threads) if runs_per_task is None else runs_per_task
             chunks = [tuple(tasks[i:i + size]) for i in range(0, len(tasks), size)]
