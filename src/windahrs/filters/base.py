@@ -464,7 +464,8 @@ def loop_family(est: Estimator) -> type:
     (AdditiveEstimator), the error-state ones another (CompiledEstimator); an estimator
     derived from Estimator directly is its own. Two estimators of one family compile the
     same numba functions, so a cluster warming its workers' cache compiles each family once,
-    on one worker (:func:`windahrs.experiments.reproduce.run_reproduction`)."""
+    on one worker (:func:`windahrs.experiments.cluster.warm_families`, which ``reproduce``
+    and ``sweep`` call)."""
     mro = type(est).__mro__
     return mro[mro.index(Estimator) - 1]
 
