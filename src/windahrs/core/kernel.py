@@ -116,6 +116,7 @@ from windahrs.core.layout import (
     N_WORK,
     N_X,
     NMAX,
+    R_ACC_FUSE_DT,
     R_ACC_LP,
     R_ACC_RANGE,
     R_ACC_VAR,
@@ -843,6 +844,7 @@ def make_state(
     prm[R_P0_BM] = p.init_mag_bias**2
     prm[R_SBM2] = p.mag_bias_noise**2
     prm[R_ACC_LP] = p.accel_lowpass
+    prm[R_ACC_FUSE_DT] = 1.0 / p.accel_fuse_rate if p.accel_fuse_rate > 0 else 0.0
     prm[R_MAG_LP] = p.mag_lowpass
     prm[R_SCALE2] = p.gyro_scale_noise**2
     prm[R_MAG_NGATE] = p.mag_norm_gate

@@ -197,7 +197,8 @@ R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
 R_REST_CLIP = 70  # rest_bias_clip, rad/s
 R_LAGB = 71  # lowpass_bias: 1 the low-passed gravity and magnetometer measurements carry their gyro-bias columns
 R_P0_YAW = 72  # init_yaw^2, rad^2 (0: init_att's)
-N_PRM = 73
+R_ACC_FUSE_DT = 73  # 1 / accel_fuse_rate, s (0: the gravity aid fuses at every IMU sample)
+N_PRM = 74
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -253,7 +254,9 @@ X_MGAIN = X_AVAR + 57
 X_TINIT = X_AVAR + 59  # when the filter initialised, s (NaN: not yet): Estimate.init_index
 X_RM = X_AVAR + 60  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
 X_NRM = X_AVAR + 63  # samples in it (0: no start check pending)
-N_X = X_AVAR + 64
+X_NFUSE = X_AVAR + 64  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
+X_TGFUSE = X_AVAR + 65  # when it was last fused, s
+N_X = X_AVAR + 66
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

@@ -46,9 +46,10 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS, airspeed_sca
 #: constants), the accelerometer's noise (vibration) estimated on line,
 #: rate-proportional gyro noise, heading-only magnetometer about the vertical
 #: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg), and the
-#: means' gyro-bias columns (lowpass_bias).
+#: means' gyro-bias columns (lowpass_bias); the gravity mean fused at 50 Hz (accel_fuse_rate).
 MEKF_FIELD = EskfParams(
     accel_lowpass=3.0,
+    accel_fuse_rate=50.0,
     accel_noise_online=True,
     gyro_scale_noise=1e-3,
     mag_3d_needs_site=True,
@@ -77,6 +78,7 @@ class Mekf(CompiledEstimator):
         process.GYRO_SCALE_PARAMS,
         gravity.PARAMS,
         gravity.LAG_PARAMS,
+        gravity.FUSE_RATE_PARAMS,
         mag.PARAMS,
         mag.BIAS_PARAMS,
     )

@@ -125,6 +125,13 @@ class EskfParams:
     body frame by the gyro increment), and that mean is the measurement, gated and fused
     at every IMU sample: linear accelerations of bounded velocity average out there while
     gravity does not (VQF's tau_acc; [mekf] default 3 s, 0: raw samples).
+    accel_fuse_rate Hz (with accel_lowpass; error-state filters): the mean is fused at this
+    rate rather than at every IMU sample, each fusion with R / k for the k samples it stands
+    for (the information per second kept), while the gain is small (the prior tilt variance
+    under a tenth of the sample's noise: ``aid.gravity.samples_to_fuse``; every sample at a
+    start or after a reset). The mean changes over accel_lowpass seconds, so fusing it at
+    every sample repeats it; the update was 43 % of [mekf]'s per-sample time ([mekf]
+    default 50 Hz, 0: every sample; docs/RESULTS.md section 25 gives its measured effect).
     lowpass_bias (with accel_lowpass, mag_lowpass): the means' measurement models include
     the gyro bias, ``H_b = H_att J``: their samples were rotated into the current body frame
     by the bias-corrected gyro, so a bias error turned each by the bias times its age (J,
@@ -301,6 +308,7 @@ class EskfParams:
     accel_norm_gate: float = 0.15
     accel_compensation: Literal["none", "gnss", "airspeed"] = "none"
     accel_lowpass: float = 0.0
+    accel_fuse_rate: float = 0.0
     lowpass_bias: bool = False
     gyro_scale_noise: float = 0.0
     mag_mode: Literal["3d", "heading", "off"] = "3d"

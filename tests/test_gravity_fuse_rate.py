@@ -1,0 +1,65 @@
+"""The gravity mean fused at accel_fuse_rate (windahrs.aid.gravity.samples_to_fuse): once
+the gain is small, one fusion with R / k stands for the k IMU samples since the last one, so
+the estimate is the one of fusing every sample, at a fraction of the updates; at a start
+(large gains) every sample is fused."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import windahrs as wa
+from windahrs.metrics import attitude_errors
+
+
+def _runs(flight: wa.Flight, *specs: str) -> list[wa.Estimate]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return [wa.estimator(s).run(flight) for s in specs]
+
+
+@pytest.fixture(scope="module")
+def quad() -> wa.Flight:
+    return wa.simulate("quadrotor", wind=8.0, duration=40.0, seed=3)
+
+
+def test_the_decimated_mean_gives_the_every_sample_estimate(quad: wa.Flight) -> None:
+    rate, every = _runs(quad, "mekf:accel_fuse_rate=50", "mekf:accel_fuse_rate=0")
+    fs = 1.0 / float(np.median(np.diff(quad.imu.t)))
+    n_rate, n_every = len(rate.innovations["accel"].t), len(every.innovations["accel"].t)
+    assert n_every > 0.95 * len(quad.imu.t)
+    # about 50 fusions per second once the gain is small, every sample before that
+    assert 50.0 * 40.0 * 0.9 < n_rate < 0.5 * n_every
+    assert fs > 150.0
+    diff = np.degrees(np.abs(attitude_errors(rate, quad).tilt - attitude_errors(every, quad).tilt))
+    assert diff.max() < 0.05  # measured 0.011 deg
+    tilt_rate = np.degrees(np.sqrt(np.mean(attitude_errors(rate, quad).tilt[50:] ** 2)))
+    tilt_every = np.degrees(np.sqrt(np.mean(attitude_errors(every, quad).tilt[50:] ** 2)))
+    assert abs(tilt_rate - tilt_every) < 0.02 * tilt_every
+    # the NIS is logged per sample: its median does not grow with the samples a fusion stands for
+    nis_rate = np.nanmedian(rate.innovations["accel"].nis)
+    nis_every = np.nanmedian(every.innovations["accel"].nis)
+    assert 0.5 < nis_rate / nis_every < 2.0
+
+
+def test_a_start_fuses_every_sample(quad: wa.Flight) -> None:
+    (rate,) = _runs(quad, "mekf:accel_fuse_rate=50")
+    t = rate.innovations["accel"].t
+    dt = float(np.median(np.diff(quad.imu.t)))
+    # just after the start, consecutive samples while the initial attitude's spread (10 deg)
+    # is above a tenth of the sample's noise (measured: the first 80 ms, 16 samples fused at
+    # 200 Hz bring it there)
+    first = t[:12]
+    assert np.all(np.diff(first) < 1.5 * dt)
+    # ... and later a fusion every 20 ms
+    late = np.diff(t[t > t[-1] - 10.0])
+    assert np.median(late) == pytest.approx(0.02, abs=0.6 * dt)
+
+
+def test_only_the_error_state_filters_take_it() -> None:
+    with pytest.raises(ValueError, match="accel_fuse_rate"):
+        wa.estimator("ekf7:accel_fuse_rate=50")
+    with pytest.raises(ValueError, match=r"accel_fuse_rate: expected a finite number >= 0"):
+        wa.estimator("mekf:accel_fuse_rate=-1")
