@@ -148,8 +148,9 @@ def _result() -> BenchResult:
 def test_json_schema_and_median() -> None:
     out = json.loads(json.dumps(_result().as_json()))
     assert set(out) == {"trials", "median"}
-    assert out["trials"][0] == {
-        "trial": "a", "filter": "mekf", "total_deg": 1.0, "inclination_deg": 0.5, "heading_deg": 0.8
+    assert out["trials"][0] == {  # the samples and run time the text table shows, too
+        "trial": "a", "filter": "mekf", "total_deg": 1.0, "inclination_deg": 0.5, "heading_deg": 0.8,
+        "samples": 100, "seconds": 0.1,
     }
     assert out["median"] == {
         "mekf": {"total_deg": 3.0, "inclination_deg": 0.7, "heading_deg": 2.9},
@@ -264,6 +265,7 @@ def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureF
     assert rows[("quad", INS)]["error"].startswith("filter 'ins-wind' needs GNSS velocity")
     for key in (("path_9", INS), ("path_10", "mekf"), ("quad", "mekf")):
         assert 0.0 <= rows[key]["inclination_deg"] < 10.0, rows[key]
+        assert rows[key]["samples"] > 0 and rows[key]["seconds"] >= 0.0, rows[key]  # as the table shows
     assert [(Path(s["path"]).name, s["reason"].split(":")[0]) for s in out["skipped"]] == [
         ("other.h5", "unknown HDF5 layout"), ("broken.ulg", "not a readable ULog file (truncated or corrupt?)")
     ]

@@ -585,7 +585,10 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
         def step(done: int, total: int) -> None:
             bar.update(done - bar.n)
 
-        res = bench_data(found.flights, specs, align=args.align, skipped=found.skipped, progress=step)
+        res = bench_data(
+            found.flights, specs, align=args.align, skipped=found.skipped, progress=step,
+            on_read=lambda path, flight: _say_read(path, flight, name_file=True),
+        )
     if not res.trial_names:
         why = "; ".join(f"{s.path}: {s.reason}" for s in res.skipped)
         raise UsageError(f"{args.dir}: no readable recording with a reference ({why})")
@@ -647,20 +650,27 @@ def _read(path: Path, *, say_repairs: bool = True) -> Flight:
     """A flight file or a log/dataset the readers know (a warning on stderr when its IMU
     rate is too low for the default noise, and one saying what the edge repaired: once per
     flight, not once per estimator)."""
-    from windahrs.filters.params import imu_rate_warning
     from windahrs.io import read_flight
-    from windahrs.repair import RepairWarning, repairs_text
 
     if path.exists() and not (path.is_file() or path.is_dir()):  # reading a FIFO would wait forever
         raise UsageError(f"{path}: not a regular file or directory (a device, FIFO or socket)")
     flight = read_flight(path)
+    _say_read(path, flight, say_repairs=say_repairs)
+    return flight
+
+
+def _say_read(path: Path, flight: Flight, *, say_repairs: bool = True, name_file: bool = False) -> None:
+    """The warnings of reading one flight (:func:`_read`'s; bench-data's per recording, with
+    ``name_file``: the IMU-rate warning then names the file, as the repairs' does)."""
+    from windahrs.filters.params import imu_rate_warning
+    from windahrs.repair import RepairWarning, repairs_text
+
     warning = imu_rate_warning(flight.imu.t)
     if warning:
-        _note(f"warning: {warning}")
+        _note(f"warning: {path}: {warning}" if name_file else f"warning: {warning}")
     repaired = repairs_text(flight.repairs)
     if repaired and say_repairs:
-        warnings.warn(f"{path}: input repaired at the edge: {repaired}", RepairWarning, stacklevel=2)
-    return flight
+        warnings.warn(f"{path}: input repaired at the edge: {repaired}", RepairWarning, stacklevel=3)
 
 
 def _score_line(sc: Score) -> str:
