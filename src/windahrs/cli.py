@@ -839,14 +839,26 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-ALIGN_HELP = (
+_ALIGN_FIT = (
     "before scoring, estimate a constant mounting rotation and time offset between the reference and the FIRST "
     "filter's estimate (put the most accurate first) and remove that one alignment for every filter, so all are "
     "scored against the same reference (fitting each filter its own would also hide its constant errors); "
-    "prints the mount angle and time offset (beside --json: on stderr, and the alignment's fields in each JSON row). "
+)
+_ALIGN_REST = (
     "Needs a logged reference (mocap or autopilot); a residual over 5 deg is flagged as an unreliable alignment. "
     "A GNSS the flight declares on the reference's clock (meta gnss.clock=reference, as ANSFL's) is moved by the "
     "same offset, its timing uncertainty lowered to the fit's, for every filter after the first"
+)
+ALIGN_HELP = (
+    _ALIGN_FIT
+    + "prints the mount angle and time offset (beside --json: on stderr, and the alignment's fields in each JSON "
+    "row). "
+    + _ALIGN_REST
+)
+#: report has no --json: the alignment is printed and shown in the page.
+REPORT_ALIGN_HELP = (
+    _ALIGN_FIT + "prints the mount angle and time offset, and the page shows them with the scores against the "
+    "reference as logged beside the aligned ones. " + _ALIGN_REST
 )
 BENCH_ALIGN_HELP = (
     "per recording, before scoring, estimate a constant mounting rotation and time offset between the reference "
@@ -1023,7 +1035,7 @@ def _parser() -> argparse.ArgumentParser:
         help=f"estimator specs (default: {','.join(DEFAULT_REPORT_FILTERS)}, leaving out those the flight lacks a "
         "sensor for or that are not installed)",
     )
-    rp.add_argument("--align", action="store_true", help=ALIGN_HELP)
+    rp.add_argument("--align", action="store_true", help=REPORT_ALIGN_HELP)
     rp.add_argument("--out", type=_file_path, required=True, metavar="REPORT.html", help="the HTML file to write")
     rp.set_defaults(func=_cmd_report)
 
