@@ -259,7 +259,9 @@ INS = "ins-wind:init_yaw=0.1745"
 
 def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench-data", str(mixed), "--filters", f"{INS},mekf", "--align", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
+    std = capsys.readouterr()
+    assert "clock of its own" not in std.err  # aligned: nothing to say
+    out = json.loads(std.out)
     rows = {(r["trial"], r["filter"]): r for r in out["trials"]}
     assert list(rows) == [(t, f) for t in ("path_9", "path_10", "quad") for f in (INS, "mekf")]
     assert rows[("quad", INS)]["error"].startswith("filter 'ins-wind' needs GNSS velocity")
@@ -283,8 +285,16 @@ def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureF
     assert out["median"][INS]["total_deg"] == rows[("path_9", INS)]["total_deg"]  # two the same
 
     assert main(["bench-data", str(mixed / "ansfl"), "--filters", "mekf"]) == 0
-    text = capsys.readouterr().out
+    std = capsys.readouterr()
+    text = std.out
     assert text.startswith("path_9: RMSE in deg\nfilter")  # no alignment line without --align
+    # scored as logged against a reference on its own clock: said once for the folder
+    notes = [line for line in std.err.splitlines() if "clock of its own" in line]
+    assert notes == [
+        "windahrs: note: 2 recordings (path_9, path_10): the reference is stamped on a clock of its own, not the "
+        "IMU's (meta reference.clock=own), at an unknown offset: scored as logged, the errors include that offset "
+        "and the sensor's mount; --align fits and removes both"
+    ]
     assert "median over 2 trials" in text and "skipped" not in text
 
 

@@ -567,6 +567,7 @@ def _cmd_sweep_report(args: argparse.Namespace) -> int:
 def _cmd_bench_data(args: argparse.Namespace) -> int:
     import json
 
+    from windahrs.experiments.align import unaligned_clock_note
     from windahrs.experiments.benchdata import bench_data, discover_flights
     from windahrs.filters.registry import make_estimator
 
@@ -585,10 +586,21 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
         def step(done: int, total: int) -> None:
             bar.update(done - bar.n)
 
+        own_clock: dict[str, str] = {}  # recording name: the note
+
+        def on_read(path: Path, flight: Flight) -> None:
+            _say_read(path, flight, name_file=True)
+            note = None if args.align else unaligned_clock_note(flight)
+            if note is not None:
+                own_clock[str(path)] = note
+
         res = bench_data(
-            found.flights, specs, align=args.align, skipped=found.skipped, progress=step,
-            on_read=lambda path, flight: _say_read(path, flight, name_file=True),
+            found.flights, specs, align=args.align, skipped=found.skipped, progress=step, on_read=on_read
         )
+    if own_clock:  # once for the folder, not once per recording
+        paths = list(own_clock)
+        shown = ", ".join(Path(p).name for p in paths[:5]) + (", ..." if len(paths) > 5 else "")
+        _note(f"note: {len(paths)} recording{'s' if len(paths) > 1 else ''} ({shown}): {own_clock[paths[0]]}")
     if not res.trial_names:
         why = "; ".join(f"{s.path}: {s.reason}" for s in res.skipped)
         raise UsageError(f"{args.dir}: no readable recording with a reference ({why})")
@@ -725,6 +737,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     except ValueError:
         print("no truth or reference in the flight: nothing to score")
         return 0
+    _clock_note(flight, "compare --align")
     print(f"{result.filter if args.smooth else args.filter}: {_score_line(score(result, flight))}")
     return 0
 
@@ -789,6 +802,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         fitted = describe_wind_fit(est)
         if fitted is not None:
             _note(fitted)
+    if not args.align:
+        _clock_note(flight)
     al = res.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")
@@ -802,6 +817,16 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 def _note(text: str) -> None:
     print(f"windahrs: {text}", file=sys.stderr)
+
+
+def _clock_note(flight: Flight, fix: str = "--align") -> None:
+    """A note on stderr when the flight is scored against a reference on a clock of its own
+    without an alignment (:func:`windahrs.experiments.align.unaligned_clock_note`)."""
+    from windahrs.experiments.align import unaligned_clock_note
+
+    text = unaligned_clock_note(flight)
+    if text is not None:
+        _note(f"note: {text.replace('--align', fix)}")
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -821,6 +846,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         )
     if not run.results:
         raise UsageError(f"--filters: no filter could run on {args.file}: {run.why_none_ran()}")
+    if not args.align:
+        _clock_note(flight)
     al = run.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")
