@@ -688,11 +688,14 @@ def _say_read(path: Path, flight: Flight, *, say_repairs: bool = True, name_file
 def _score_line(sc: Score) -> str:
     r = sc.rmse_from50_deg
     s = sc.rmse_steady_deg
-    return (
-        f"RMSE vs {sc.reference} from sample 50: roll {r[0]:.3f} pitch {r[1]:.3f} yaw {r[2]:.3f} deg, "
-        f"total {sc.rmse_total_deg:.3f} deg, tilt {sc.rmse_tilt_deg:.3f} deg; "
-        f"second half: roll {s[0]:.3f} pitch {s[1]:.3f} yaw {s[2]:.3f} deg"
+    none = "no reference sample scored"  # a span the reference does not cover (NaN)
+    first = (
+        f"roll {r[0]:.3f} pitch {r[1]:.3f} yaw {r[2]:.3f} deg, total {sc.rmse_total_deg:.3f} deg, "
+        f"tilt {sc.rmse_tilt_deg:.3f} deg"
+        if math.isfinite(sc.rmse_total_deg) else none
     )
+    second = f"roll {s[0]:.3f} pitch {s[1]:.3f} yaw {s[2]:.3f} deg" if all(map(math.isfinite, s)) else none
+    return f"RMSE vs {sc.reference} from sample 50: {first}; second half: {second}"
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
