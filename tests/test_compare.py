@@ -166,3 +166,25 @@ def test_a_span_without_reference_samples_is_a_dash_and_null_not_nan(
     assert main(["report", str(path), "--filters", "mekf,ekf7", "--out", str(tmp_path / "r.html")]) == 0
     page = (tmp_path / "r.html").read_text()
     assert "(–: no reference sample scored in that span)" in page and ">nan<" not in page
+
+
+def test_estimate_keeps_its_output_when_the_reference_misses_the_flight(
+    recording: wa.Flight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A reference wholly after the IMU's samples: estimate writes its Estimate and says
+    there is nothing to score (it used to print 'wrote' and then fail, its file removed)."""
+    from windahrs.cli import main
+    from windahrs.store import save_flight
+
+    ref = recording.reference
+    assert ref is not None
+    later = recording.replace(reference=Reference(t=ref.t + 1000.0, q_nb=ref.q_nb, kind="autopilot"))
+    path = save_flight(later, tmp_path / "later.h5")
+    out = tmp_path / "est.h5"
+    assert main(["estimate", str(path), "--filter", "mekf", "--out", str(out)]) == 0
+    assert out.is_file()
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        "nothing to score: reference: no sample overlaps the estimate in time"
+    )
+    assert main(["compare", str(path), "--filters", "mekf"]) == 2  # compare has nothing to show: an error
+    assert "no sample overlaps the estimate in time" in capsys.readouterr().err

@@ -740,8 +740,13 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     except ValueError:
         print("no truth or reference in the flight: nothing to score")
         return 0
+    try:
+        scored = score(result, flight)
+    except ValueError as exc:  # a reference beside the estimate in time: the estimate stands (and was written)
+        print(f"nothing to score: {exc}")
+        return 0
     _clock_note(flight, "compare --align")
-    print(f"{result.filter if args.smooth else args.filter}: {_score_line(score(result, flight))}")
+    print(f"{result.filter if args.smooth else args.filter}: {_score_line(scored)}")
     return 0
 
 
