@@ -53,6 +53,31 @@ def test_round_trip_units_frames_and_reference(tmp_path: Path, sim: Flight) -> N
     assert f.meta["format"] == "ansfl" and f.meta["ansfl.imu_file"] == "IMU_1.csv"
 
 
+def test_scoring_without_align_says_the_reference_has_its_own_clock(
+    tmp_path: Path, sim: Flight, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """DJI's log and the DOT's are on two clocks: the reader declares it, and compare,
+    estimate and report scoring against the reference as logged say so (once), pointing to
+    --align; with --align, or on a flight on one clock, they say nothing of it."""
+    from windahrs.cli import main
+    from windahrs.experiments.align import REFERENCE_CLOCK_KEY, unaligned_clock_note
+
+    d = write_ansfl_dir(tmp_path / "path_5", sim)
+    f = read_flight(d)
+    assert f.meta[REFERENCE_CLOCK_KEY] == "own" and unaligned_clock_note(f) is not None
+    assert unaligned_clock_note(sim) is None  # a simulation: one clock
+    said = "windahrs: note: the reference is stamped on a clock of its own, not the IMU's"
+    assert main(["compare", str(d), "--filters", "mekf,ekf7"]) == 0
+    assert capsys.readouterr().err.count(said) == 1
+    assert main(["estimate", str(d), "--filter", "mekf"]) == 0
+    err = capsys.readouterr().err
+    assert err.count(said) == 1 and err.rstrip().endswith("compare --align fits and removes both")
+    assert main(["report", str(d), "--filters", "mekf", "--out", str(tmp_path / "r.html")]) == 0
+    assert capsys.readouterr().err.count(said) == 1
+    assert main(["compare", str(d), "--filters", "mekf", "--align"]) == 0
+    assert "clock of its own" not in capsys.readouterr().err
+
+
 def test_imu_choice_and_gnss_option(tmp_path: Path, sim: Flight) -> None:
     d = write_ansfl_dir(tmp_path / "path_2", sim, imus=(4, 2))  # IMU k adds k-1 m/s^2 on x
     assert detect_format(d) == "ansfl"

@@ -148,8 +148,9 @@ def _result() -> BenchResult:
 def test_json_schema_and_median() -> None:
     out = json.loads(json.dumps(_result().as_json()))
     assert set(out) == {"trials", "median"}
-    assert out["trials"][0] == {
-        "trial": "a", "filter": "mekf", "total_deg": 1.0, "inclination_deg": 0.5, "heading_deg": 0.8
+    assert out["trials"][0] == {  # the samples and run time the text table shows, too
+        "trial": "a", "filter": "mekf", "total_deg": 1.0, "inclination_deg": 0.5, "heading_deg": 0.8,
+        "samples": 100, "seconds": 0.1,
     }
     assert out["median"] == {
         "mekf": {"total_deg": 3.0, "inclination_deg": 0.7, "heading_deg": 2.9},
@@ -258,12 +259,15 @@ INS = "ins-wind:init_yaw=0.1745"
 
 def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench-data", str(mixed), "--filters", f"{INS},mekf", "--align", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
+    std = capsys.readouterr()
+    assert "clock of its own" not in std.err  # aligned: nothing to say
+    out = json.loads(std.out)
     rows = {(r["trial"], r["filter"]): r for r in out["trials"]}
     assert list(rows) == [(t, f) for t in ("path_9", "path_10", "quad") for f in (INS, "mekf")]
     assert rows[("quad", INS)]["error"].startswith("filter 'ins-wind' needs GNSS velocity")
     for key in (("path_9", INS), ("path_10", "mekf"), ("quad", "mekf")):
         assert 0.0 <= rows[key]["inclination_deg"] < 10.0, rows[key]
+        assert rows[key]["samples"] > 0 and rows[key]["seconds"] >= 0.0, rows[key]  # as the table shows
     assert [(Path(s["path"]).name, s["reason"].split(":")[0]) for s in out["skipped"]] == [
         ("other.h5", "unknown HDF5 layout"), ("broken.ulg", "not a readable ULog file (truncated or corrupt?)")
     ]
@@ -281,8 +285,16 @@ def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureF
     assert out["median"][INS]["total_deg"] == rows[("path_9", INS)]["total_deg"]  # two the same
 
     assert main(["bench-data", str(mixed / "ansfl"), "--filters", "mekf"]) == 0
-    text = capsys.readouterr().out
+    std = capsys.readouterr()
+    text = std.out
     assert text.startswith("path_9: RMSE in deg\nfilter")  # no alignment line without --align
+    # scored as logged against a reference on its own clock: said once for the folder
+    notes = [line for line in std.err.splitlines() if "clock of its own" in line]
+    assert notes == [
+        "windahrs: note: 2 recordings (path_9, path_10): the reference is stamped on a clock of its own, not the "
+        "IMU's (meta reference.clock=own), at an unknown offset: scored as logged, the errors include that offset "
+        "and the sensor's mount; --align fits and removes both"
+    ]
     assert "median over 2 trials" in text and "skipped" not in text
 
 

@@ -3,6 +3,8 @@ filters run, failures collected, and the one alignment with its explicit fallbac
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -120,3 +122,69 @@ def test_snapshot_of_an_uncopyable_library_says_so() -> None:
     s.imu(0.01, np.zeros(3), np.array([0.0, 0.0, -9.8]))
     with pytest.raises(TypeError, match="snapshot: the imufusion streamer holds state that cannot be copied"):
         s.snapshot()
+
+
+def test_a_span_without_reference_samples_is_a_dash_and_null_not_nan(
+    recording: wa.Flight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A reference ending before the second half (a truncated log): that span's RMSE is NaN
+    in the Score, a dash in the table with a footnote, null in the JSON (strict JSON has no
+    NaN), 'no reference sample scored' from estimate and a dash in the report; and no
+    numpy "Mean of empty slice" warning on the way."""
+    import json
+    import warnings
+
+    from windahrs.cli import main
+    from windahrs.metrics import rmse
+    from windahrs.store import save_flight
+
+    ref = recording.reference
+    assert ref is not None
+    keep = ref.t < recording.imu.t[len(recording.imu.t) // 2 - 10]  # ends before the second half
+    early = recording.replace(reference=Reference(t=ref.t[keep], q_nb=ref.q_nb[keep], kind="autopilot"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(rmse(np.zeros((0, 3)))).all() and rmse(np.zeros((0, 3))).shape == (3,)
+        res = cmp.compare(early, "mekf")
+    row = res.rows[0]
+    assert np.isnan(row.rmse_steady_deg).all() and np.isfinite(row.rmse_total_deg)
+    table = res.table()
+    assert table.splitlines()[2].split()[4:8] == ["|", "-", "-", "-"]
+    assert table.endswith("(-: no reference sample scored in that span)")
+    out = json.loads(json.dumps(res.as_json(), allow_nan=False))
+    assert out[0]["rmse_steady_deg"] == [None, None, None] and out[0]["rmse_total_deg"] == row.rmse_total_deg
+    assert "(-:" not in cmp.compare(recording, "mekf").table()  # a full reference: no footnote
+
+    path = save_flight(early, tmp_path / "early.h5")
+    assert main(["compare", str(path), "--filters", "mekf", "--json"]) == 0
+    std = capsys.readouterr()
+    assert json.loads(std.out)[0]["rmse_steady_deg"] == [None, None, None] and "empty slice" not in std.err
+    assert main(["estimate", str(path), "--filter", "mekf"]) == 0
+    std = capsys.readouterr()
+    assert std.out.rstrip().endswith("; second half: no reference sample scored") and "nan" not in std.out
+    assert "empty slice" not in std.err
+    assert main(["report", str(path), "--filters", "mekf,ekf7", "--out", str(tmp_path / "r.html")]) == 0
+    page = (tmp_path / "r.html").read_text()
+    assert "(–: no reference sample scored in that span)" in page and ">nan<" not in page
+
+
+def test_estimate_keeps_its_output_when_the_reference_misses_the_flight(
+    recording: wa.Flight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A reference wholly after the IMU's samples: estimate writes its Estimate and says
+    there is nothing to score (it used to print 'wrote' and then fail, its file removed)."""
+    from windahrs.cli import main
+    from windahrs.store import save_flight
+
+    ref = recording.reference
+    assert ref is not None
+    later = recording.replace(reference=Reference(t=ref.t + 1000.0, q_nb=ref.q_nb, kind="autopilot"))
+    path = save_flight(later, tmp_path / "later.h5")
+    out = tmp_path / "est.h5"
+    assert main(["estimate", str(path), "--filter", "mekf", "--out", str(out)]) == 0
+    assert out.is_file()
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        "nothing to score: reference: no sample overlaps the estimate in time"
+    )
+    assert main(["compare", str(path), "--filters", "mekf"]) == 2  # compare has nothing to show: an error
+    assert "no sample overlaps the estimate in time" in capsys.readouterr().err

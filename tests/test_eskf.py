@@ -381,6 +381,12 @@ def test_an_angle_of_attack_vane_alone_adds_its_angle_to_airspeed_and_synthetic_
         assert "aoa" not in off.innovations and {"tas", "sideslip"} <= set(off.innovations), name
     with pytest.raises(MissingSensorError, match=r"'paper'.*found air data with only one vane \(aoa\)"):
         make_estimator("paper").run(aoa_only)
+    # air data is there: the message says its vanes are missing, not the air data (as on ALFA)
+    with pytest.raises(MissingSensorError) as pitot_only:
+        make_estimator("paper").run(pitot)
+    assert str(pitot_only.value).startswith("filter 'paper' needs air data with both vanes ('air'), which the "
+                                            "flight does not have: ")
+    assert str(pitot_only.value).endswith("found air data without vanes (pitot only)")
 
 
 @pytest.mark.parametrize(("kind", "additive"), [("mekf", False), ("ins-wind", False), ("mekf", True)])

@@ -483,3 +483,5 @@ def test_align_help_says_which_estimate(command: str, capsys: pytest.CaptureFixt
     assert info.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert "FIRST filter's estimate" in text
+    # the help names only options the command has (report has no --json)
+    assert ("--json" in text) == (command == "compare")

@@ -207,6 +207,24 @@ def test_arrays_flight_reported_by_cli_compare(tmp_path: Path, capsys: pytest.Ca
     assert captured.err.count(line) == 1  # once per flight, not per filter
 
 
+def test_bench_data_says_what_compare_says_on_reading(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """bench-data warns, per recording and naming it, of what the edge repaired and of a
+    low-rate IMU, as compare does for one flight (it used to say neither)."""
+    t, g, a, m = glitched()
+    level = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    repaired = save_flight(Flight.from_arrays(t, g, a, m, reference=level), tmp_path / "repaired.h5")
+    t0, g0, a0, m0 = raw_imu()
+    k = slice(None, None, 20)  # 10 Hz
+    slow = save_flight(Flight.from_arrays(t0[k], g0[k], a0[k], m0[k], reference=level[: len(t0[k])]),
+                       tmp_path / "slow.h5")
+    assert main(["bench-data", str(tmp_path), "--filters", "mekf,ekf7"]) == 0
+    err = capsys.readouterr().err
+    line = f"windahrs bench-data: warning: {repaired}: input repaired at the edge: imu: 2 samples out of order sorted"
+    assert err.count(line) == 1  # once per recording, not per filter
+    assert err.count(f"windahrs: warning: {slow}: the IMU runs at 10 Hz: its samples are taken as point") == 1
+    assert f"{repaired}: the IMU runs at" not in err
+
+
 # --- truncated logs -----------------------------------------------------------------------
 
 

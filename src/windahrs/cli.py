@@ -567,6 +567,7 @@ def _cmd_sweep_report(args: argparse.Namespace) -> int:
 def _cmd_bench_data(args: argparse.Namespace) -> int:
     import json
 
+    from windahrs.experiments.align import unaligned_clock_note
     from windahrs.experiments.benchdata import bench_data, discover_flights
     from windahrs.filters.registry import make_estimator
 
@@ -585,7 +586,21 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
         def step(done: int, total: int) -> None:
             bar.update(done - bar.n)
 
-        res = bench_data(found.flights, specs, align=args.align, skipped=found.skipped, progress=step)
+        own_clock: dict[str, str] = {}  # recording name: the note
+
+        def on_read(path: Path, flight: Flight) -> None:
+            _say_read(path, flight, name_file=True)
+            note = None if args.align else unaligned_clock_note(flight)
+            if note is not None:
+                own_clock[str(path)] = note
+
+        res = bench_data(
+            found.flights, specs, align=args.align, skipped=found.skipped, progress=step, on_read=on_read
+        )
+    if own_clock:  # once for the folder, not once per recording
+        paths = list(own_clock)
+        shown = ", ".join(Path(p).name for p in paths[:5]) + (", ..." if len(paths) > 5 else "")
+        _note(f"note: {len(paths)} recording{'s' if len(paths) > 1 else ''} ({shown}): {own_clock[paths[0]]}")
     if not res.trial_names:
         why = "; ".join(f"{s.path}: {s.reason}" for s in res.skipped)
         raise UsageError(f"{args.dir}: no readable recording with a reference ({why})")
@@ -647,30 +662,40 @@ def _read(path: Path, *, say_repairs: bool = True) -> Flight:
     """A flight file or a log/dataset the readers know (a warning on stderr when its IMU
     rate is too low for the default noise, and one saying what the edge repaired: once per
     flight, not once per estimator)."""
-    from windahrs.filters.params import imu_rate_warning
     from windahrs.io import read_flight
-    from windahrs.repair import RepairWarning, repairs_text
 
     if path.exists() and not (path.is_file() or path.is_dir()):  # reading a FIFO would wait forever
         raise UsageError(f"{path}: not a regular file or directory (a device, FIFO or socket)")
     flight = read_flight(path)
+    _say_read(path, flight, say_repairs=say_repairs)
+    return flight
+
+
+def _say_read(path: Path, flight: Flight, *, say_repairs: bool = True, name_file: bool = False) -> None:
+    """The warnings of reading one flight (:func:`_read`'s; bench-data's per recording, with
+    ``name_file``: the IMU-rate warning then names the file, as the repairs' does)."""
+    from windahrs.filters.params import imu_rate_warning
+    from windahrs.repair import RepairWarning, repairs_text
+
     warning = imu_rate_warning(flight.imu.t)
     if warning:
-        _note(f"warning: {warning}")
+        _note(f"warning: {path}: {warning}" if name_file else f"warning: {warning}")
     repaired = repairs_text(flight.repairs)
     if repaired and say_repairs:
-        warnings.warn(f"{path}: input repaired at the edge: {repaired}", RepairWarning, stacklevel=2)
-    return flight
+        warnings.warn(f"{path}: input repaired at the edge: {repaired}", RepairWarning, stacklevel=3)
 
 
 def _score_line(sc: Score) -> str:
     r = sc.rmse_from50_deg
     s = sc.rmse_steady_deg
-    return (
-        f"RMSE vs {sc.reference} from sample 50: roll {r[0]:.3f} pitch {r[1]:.3f} yaw {r[2]:.3f} deg, "
-        f"total {sc.rmse_total_deg:.3f} deg, tilt {sc.rmse_tilt_deg:.3f} deg; "
-        f"second half: roll {s[0]:.3f} pitch {s[1]:.3f} yaw {s[2]:.3f} deg"
+    none = "no reference sample scored"  # a span the reference does not cover (NaN)
+    first = (
+        f"roll {r[0]:.3f} pitch {r[1]:.3f} yaw {r[2]:.3f} deg, total {sc.rmse_total_deg:.3f} deg, "
+        f"tilt {sc.rmse_tilt_deg:.3f} deg"
+        if math.isfinite(sc.rmse_total_deg) else none
     )
+    second = f"roll {s[0]:.3f} pitch {s[1]:.3f} yaw {s[2]:.3f} deg" if all(map(math.isfinite, s)) else none
+    return f"RMSE vs {sc.reference} from sample 50: {first}; second half: {second}"
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
@@ -715,7 +740,13 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     except ValueError:
         print("no truth or reference in the flight: nothing to score")
         return 0
-    print(f"{result.filter if args.smooth else args.filter}: {_score_line(score(result, flight))}")
+    try:
+        scored = score(result, flight)
+    except ValueError as exc:  # a reference beside the estimate in time: the estimate stands (and was written)
+        print(f"nothing to score: {exc}")
+        return 0
+    _clock_note(flight, "compare --align")
+    print(f"{result.filter if args.smooth else args.filter}: {_score_line(scored)}")
     return 0
 
 
@@ -779,6 +810,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         fitted = describe_wind_fit(est)
         if fitted is not None:
             _note(fitted)
+    if not args.align:
+        _clock_note(flight)
     al = res.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")
@@ -792,6 +825,16 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 def _note(text: str) -> None:
     print(f"windahrs: {text}", file=sys.stderr)
+
+
+def _clock_note(flight: Flight, fix: str = "--align") -> None:
+    """A note on stderr when the flight is scored against a reference on a clock of its own
+    without an alignment (:func:`windahrs.experiments.align.unaligned_clock_note`)."""
+    from windahrs.experiments.align import unaligned_clock_note
+
+    text = unaligned_clock_note(flight)
+    if text is not None:
+        _note(f"note: {text.replace('--align', fix)}")
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -811,6 +854,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         )
     if not run.results:
         raise UsageError(f"--filters: no filter could run on {args.file}: {run.why_none_ran()}")
+    if not args.align:
+        _clock_note(flight)
     al = run.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")
@@ -829,14 +874,26 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-ALIGN_HELP = (
+_ALIGN_FIT = (
     "before scoring, estimate a constant mounting rotation and time offset between the reference and the FIRST "
     "filter's estimate (put the most accurate first) and remove that one alignment for every filter, so all are "
     "scored against the same reference (fitting each filter its own would also hide its constant errors); "
-    "prints the mount angle and time offset (beside --json: on stderr, and the alignment's fields in each JSON row). "
+)
+_ALIGN_REST = (
     "Needs a logged reference (mocap or autopilot); a residual over 5 deg is flagged as an unreliable alignment. "
     "A GNSS the flight declares on the reference's clock (meta gnss.clock=reference, as ANSFL's) is moved by the "
     "same offset, its timing uncertainty lowered to the fit's, for every filter after the first"
+)
+ALIGN_HELP = (
+    _ALIGN_FIT
+    + "prints the mount angle and time offset (beside --json: on stderr, and the alignment's fields in each JSON "
+    "row). "
+    + _ALIGN_REST
+)
+#: report has no --json: the alignment is printed and shown in the page.
+REPORT_ALIGN_HELP = (
+    _ALIGN_FIT + "prints the mount angle and time offset, and the page shows them with the scores against the "
+    "reference as logged beside the aligned ones. " + _ALIGN_REST
 )
 BENCH_ALIGN_HELP = (
     "per recording, before scoring, estimate a constant mounting rotation and time offset between the reference "
@@ -1013,7 +1070,7 @@ def _parser() -> argparse.ArgumentParser:
         help=f"estimator specs (default: {','.join(DEFAULT_REPORT_FILTERS)}, leaving out those the flight lacks a "
         "sensor for or that are not installed)",
     )
-    rp.add_argument("--align", action="store_true", help=ALIGN_HELP)
+    rp.add_argument("--align", action="store_true", help=REPORT_ALIGN_HELP)
     rp.add_argument("--out", type=_file_path, required=True, metavar="REPORT.html", help="the HTML file to write")
     rp.set_defaults(func=_cmd_report)
 

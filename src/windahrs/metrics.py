@@ -110,8 +110,12 @@ def attitude_errors(est: Estimate, flight: Flight, *, remove_heading: bool | Non
 
 
 def rmse(x: F64, axis: int = 0) -> F64:
-    """Root mean square along ``axis`` (NaN-aware)."""
-    return np.sqrt(np.nanmean(np.asarray(x) ** 2, axis=axis))
+    """Root mean square along ``axis`` (NaN-aware); NaN over no sample at all (e.g. a
+    reference that ends before the second half), without numpy's "Mean of empty slice"."""
+    a = np.asarray(x) ** 2
+    if a.shape[axis] == 0:
+        return np.full(np.delete(a.shape, axis), np.nan)
+    return np.sqrt(np.nanmean(a, axis=axis))
 
 
 def convergence_index(total: F64, threshold: float) -> int:
@@ -122,7 +126,8 @@ def convergence_index(total: F64, threshold: float) -> int:
 
 @dataclass(frozen=True)
 class Score:
-    """RMSE in degrees: from sample 50 on, and over the second half (steady state)."""
+    """RMSE in degrees: from sample 50 on, and over the second half (steady state); NaN
+    over a span without a scored reference sample."""
 
     filter: str
     reference: str

@@ -61,6 +61,8 @@ __all__ = [
     "ALIGN_RESIDUAL_DEG",
     "GNSS_CLOCK_KEY",
     "GNSS_ON_REFERENCE_CLOCK",
+    "REFERENCE_CLOCK_KEY",
+    "REFERENCE_OWN_CLOCK",
     "Alignment",
     "align_gnss_clock",
     "alignment_warning",
@@ -68,6 +70,7 @@ __all__ = [
     "describe_alignment",
     "estimate_alignment",
     "quat_average",
+    "unaligned_clock_note",
 ]
 
 F64 = NDArray[np.float64]
@@ -80,6 +83,27 @@ ALIGN_RESIDUAL_DEG = 5.0
 #: so the clock offset an alignment fits applies to the GNSS too (:func:`align_gnss_clock`).
 GNSS_CLOCK_KEY = "gnss.clock"
 GNSS_ON_REFERENCE_CLOCK = "reference"
+
+#: ``Flight.meta`` key a reader sets to say on which clock the reference is stamped; the
+#: value :data:`REFERENCE_OWN_CLOCK` means a clock of its own, not the IMU's, at an offset
+#: the reader does not know (the ANSFL reader: DJI's log against the Xsens DOT's). Scored as
+#: logged, the errors then include that offset, so the commands say so when they score
+#: without ``--align`` (:func:`unaligned_clock_note`).
+REFERENCE_CLOCK_KEY = "reference.clock"
+REFERENCE_OWN_CLOCK = "own"
+
+
+def unaligned_clock_note(flight: Flight) -> str | None:
+    """What to tell a user who scores ``flight`` against its reference as logged when the
+    flight declares the reference on a clock of its own (:data:`REFERENCE_CLOCK_KEY`);
+    None otherwise."""
+    if flight.reference is None or flight.meta.get(REFERENCE_CLOCK_KEY) != REFERENCE_OWN_CLOCK:
+        return None
+    return (
+        f"the reference is stamped on a clock of its own, not the IMU's (meta {REFERENCE_CLOCK_KEY}="
+        f"{REFERENCE_OWN_CLOCK}), at an unknown offset: scored as logged, the errors include that offset and the "
+        "sensor's mount; --align fits and removes both"
+    )
 
 
 @dataclass(frozen=True)

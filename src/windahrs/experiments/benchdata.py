@@ -157,8 +157,9 @@ class TrialScore:
         return self.error is None
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON row: trial, filter and the three RMSE figures; or trial, filter and
-        ``error`` for a filter that failed on the trial."""
+        """The JSON row: trial, filter, the three RMSE figures, ``samples`` (scored) and
+        ``seconds`` (run time), as the text table shows them; or trial, filter and ``error``
+        for a filter that failed on the trial."""
         if self.error is not None:
             return {"trial": self.trial, "filter": self.filter, "error": self.error}
         return {
@@ -167,6 +168,8 @@ class TrialScore:
             "total_deg": self.total_deg,
             "inclination_deg": self.inclination_deg,
             "heading_deg": self.heading_deg,
+            "samples": self.samples,
+            "seconds": _json_float(self.seconds),
         }
 
 
@@ -209,7 +212,8 @@ class BenchResult:
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready dict: ``{"trials": [{"trial", "filter", "total_deg",
-        "inclination_deg", "heading_deg"} or {"trial", "filter", "error"}, ...], "median":
+        "inclination_deg", "heading_deg", "samples", "seconds"} or {"trial", "filter",
+        "error"}, ...], "median":
         {FILTER: {"total_deg", "inclination_deg", "heading_deg"}}}`` (a median is None for a
         filter that ran on no trial), with ``"skipped": [{"path", "reason"}]`` when a
         recording was skipped and ``"alignment": {TRIAL: {...}}`` with ``align``: the fields
@@ -438,6 +442,7 @@ def bench_data(
     align: bool = False,
     skipped: Sequence[Skipped] = (),
     progress: Callable[[int, int], None] | None = None,
+    on_read: Callable[[Path, Flight], None] | None = None,
 ) -> BenchResult:
     """Run every estimator spec (``NAME`` or ``NAME:field=value:...``, see
     :func:`~windahrs.filters.registry.make_estimator`) over every recording in ``paths``
@@ -463,7 +468,9 @@ def bench_data(
     first runs on the flight as logged).
 
     ``progress(done, total)`` is called after each filter run (and per filter of a skipped
-    recording). Trial names are :func:`trial_names`.
+    recording); ``on_read(path, flight)`` after each recording is read, before its filters
+    run (the command line says there what the reader repaired and warns of a low-rate IMU,
+    as for one flight). Trial names are :func:`trial_names`.
     """
     from windahrs.io import read_flight
 
@@ -490,6 +497,8 @@ def bench_data(
             if progress is not None:
                 progress(done, total)
             continue
+        if on_read is not None:
+            on_read(Path(p), flight)
         runs: list[tuple[str, Estimate | str, float]] = []
         outcome = AlignmentOutcome()
         for k, (spec, est) in enumerate(zip(specs, estimators, strict=True)):

@@ -176,6 +176,19 @@ def _json_float(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def _json_score(row: dict[str, object]) -> dict[str, object]:
+    """A score's dict with None for its NaN figures (a list's entries one by one)."""
+    out: dict[str, object] = {}
+    for k, v in row.items():
+        if isinstance(v, float):
+            out[k] = _json_float(v)
+        elif isinstance(v, list):
+            out[k] = [_json_float(x) if isinstance(x, float) else x for x in v]
+        else:
+            out[k] = v
+    return out
+
+
 def nothing_to_align(flight: Flight) -> str:
     """Why a flight without a reference gets no alignment."""
     if flight.truth is not None:
@@ -311,18 +324,22 @@ class CompareResult:
         axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
         width = max(14, *(len(r.filter) + 1 for r in rows))
         lines.append(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}")
+        empty = False
         for r in rows:
             a, b = r.rmse_from50_deg, r.rmse_steady_deg
-            lines.append(
-                f"{r.filter:<{width}}{a[0]:8.3f}{a[1]:8.3f}{a[2]:8.3f} |{b[0]:8.3f}{b[1]:8.3f}{b[2]:8.3f} |"
-                f"{r.rmse_tilt_deg:8.3f}{r.rmse_total_deg:8.3f}"
-            )
+            cells = [*a, *b, r.rmse_tilt_deg, r.rmse_total_deg]
+            empty |= not all(math.isfinite(v) for v in cells)
+            c = [f"{v:8.3f}" if math.isfinite(v) else f"{'-':>8}" for v in cells]
+            lines.append(f"{r.filter:<{width}}{''.join(c[:3])} |{''.join(c[3:6])} |{''.join(c[6:])}")
+        if empty:
+            lines.append("(-: no reference sample scored in that span)")
         return "\n".join(lines)
 
     def as_json(self) -> list[dict[str, object]]:
-        """One dict per filter: its score and, when aligned, the alignment's fields."""
+        """One dict per filter: its score (null where a span has no scored reference
+        sample: JSON has no NaN) and, when aligned, the alignment's fields."""
         extra = self.alignment.fields()
-        return [{**r.as_dict(), **extra} for r in self.rows]
+        return [{**_json_score(r.as_dict()), **extra} for r in self.rows]
 
     def scale_lines(self) -> list[str]:
         """One line per filter that estimated the airspeed scale on line (``airspeed_scale``)."""

@@ -65,10 +65,12 @@ SENSOR_NAMES = {"imu": "the IMU", "mag": "a magnetometer", "gnss": "GNSS velocit
 class MissingSensorError(ValueError):
     """The flight lacks a sensor the filter needs."""
 
-    def __init__(self, filter_name: str, sensor: str, detail: str = "") -> None:
+    def __init__(self, filter_name: str, sensor: str, detail: str = "", *, what: str | None = None) -> None:
+        """what: what the filter needs of the stream, when the stream alone does not say it
+        (default: the stream's name, e.g. "air data")."""
         self.filter = filter_name
         self.sensor = sensor
-        what = SENSOR_NAMES.get(sensor, sensor)
+        what = SENSOR_NAMES.get(sensor, sensor) if what is None else what
         super().__init__(
             f"filter {filter_name!r} needs {what} ({sensor!r}), which the flight does not have{detail}"
         )

@@ -250,10 +250,12 @@ class PaperEKF(AdditiveEstimator):
                 found = f"air data with only one vane ({flight.air.vane_names[0]})"
             else:
                 found = "air data without vanes (pitot only)"
+            # With air data present, what is missing is its vanes (not "air data").
             raise MissingSensorError(
                 self.name,
                 "air",
                 f": the air-flow direction needs vanes (angle of attack and sideslip), found {found}",
+                what=None if flight.air is None else "air data with both vanes",
             )
         super().check(flight)
 

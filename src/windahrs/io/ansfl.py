@@ -27,7 +27,8 @@ What the reader does not do (the edge converts units and frames, it does not fit
 
 * Clocks: the DOT and the DJI logger have their own clocks, both starting at 0 in the files;
   they differ by a few hundred ms on the published flights. ``imu.t`` is the DOT's clock,
-  ``gnss.t`` and ``reference.t`` DJI's, as logged. ``--align``
+  ``gnss.t`` and ``reference.t`` DJI's, as logged (``meta["reference.clock"] = "own"``: the
+  commands scoring without ``--align`` say so). ``--align``
   (:mod:`windahrs.experiments.align`) estimates the offset.
 * Mounting: the DOT is strapped on a few degrees off the airframe axes; ``--align`` fits that
   constant rotation too.
@@ -149,6 +150,7 @@ def read_ansfl(path: str | os.PathLike[str], *, imu: int | None = None, gnss: bo
         "reference.source": "DJI flight controller (GT.csv roll, pitch, compass heading)",
         "reference.heading_free": "no magnetometer: the estimators cannot share the compass's heading datum",
         "clocks": "imu: Xsens DOT; gnss, reference: DJI (offset not removed, see --align)",
+        "reference.clock": "own",  # DJI's, not the DOT's (experiments.align.REFERENCE_CLOCK_KEY)
     }
     rep = RepairLog()
     t_imu, v_imu = _seconds(imu_table, _S, 0, "imu", meta, rep)

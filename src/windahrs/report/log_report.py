@@ -287,14 +287,20 @@ def _overview(
 
 def _score_table(scores: Sequence[Score], caption: str) -> Table:
     rows: list[list[Cell]] = []
-    for s in scores:
-        rows.append([s.filter, *s.rmse_from50_deg, *s.rmse_steady_deg, s.rmse_tilt_deg, s.rmse_total_deg])
+    figures = np.array(
+        [[*s.rmse_from50_deg, *s.rmse_steady_deg, s.rmse_tilt_deg, s.rmse_total_deg] for s in scores], dtype=float
+    ).reshape(len(scores), 8)
+    for s, f in zip(scores, figures, strict=True):
+        # NaN: a span without a scored reference sample, shown as a dash and said in the caption
+        rows.append([s.filter, *(float(v) if np.isfinite(v) else None for v in f)])
     highlight: dict[tuple[int, int], Literal["good", "bad"]] = {}
     if len(rows) > 1:
-        for j in range(1, 9):
-            col = np.array([float(r[j]) for r in rows])  # type: ignore[arg-type]
+        for j in range(8):
+            col = figures[:, j]
             if np.isfinite(col).any():
-                highlight[(int(np.nanargmin(col)), j)] = "good"
+                highlight[(int(np.nanargmin(col)), j + 1)] = "good"
+    if not np.isfinite(figures).all():
+        caption += " (–: no reference sample scored in that span)"
     columns = ["filter", "roll", "pitch", "yaw", "roll, 2nd half", "pitch, 2nd half", "yaw, 2nd half", "tilt",
                "total"]
     return Table(columns, rows, caption=caption, highlight=highlight)
