@@ -20,18 +20,17 @@ they are the flight's, the same for every estimator, and said once where the fli
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 import warnings
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
+from windahrs.core.quat import _dcm9
 from windahrs.estimate import Deferred, Estimate, EstimatorWarning
 from windahrs.flags import absent_mask, estimate_flags
 from windahrs.flight import Flight
-from windahrs.rotation import quat_rotate
 
 __all__ = [
     "BIAS_LIMIT_DEG_S", "TILT_HOLD_S", "TILT_LIMIT_DEG", "TILT_TAU_S", "bias_alerts", "checked", "tilt_alerts",
@@ -95,16 +94,14 @@ def tilt_alerts(
     t, imu = est.t, flight.imu
     if len(t) != len(imu.t) or len(t) < 2:
         return np.empty((0, 3))
-    # every sample's specific force, rotated at CHECK_RATE_HZ (the mean's tau is seconds)
+    # every sample's specific force, rotated at CHECK_RATE_HZ (the mean's tau is seconds): the
+    # block means of the samples, rotated with the block's middle attitude
     dt = float(np.median(np.diff(t)))
     step = max(1, int(1.0 / (CHECK_RATE_HZ * dt)))
-    f_b, q = _fill(imu.f_b), _fill(est.q_nb)
-    if step > 1:  # the block means of the samples, rotated with the block's middle attitude
-        n = len(t) // step * step
-        f_b = np.add.reduceat(f_b[:n], np.arange(0, n, step), axis=0) / step
-        t, q = t[step // 2 : n : step], q[step // 2 : n : step]
-        dt *= step
-    f_n = quat_rotate(q, f_b)  # a_n - g_n for a right attitude
+    f_n = _block_rotate(_fill(imu.f_b), _fill(est.q_nb), step)  # a_n - g_n for a right attitude
+    n = len(t) // step * step
+    t = t[step // 2 : n : step]
+    dt *= step
     g = flight.gnss
     unmeasured = np.zeros(len(t), dtype=bool)  # the acceleration not measured in the mean's time
     if g is not None and len(g.t) >= 3:
@@ -120,31 +117,65 @@ def tilt_alerts(
     # the mean restarts at each of the filter's resets: the forces before one were rotated
     # by the attitude the reset discarded, and would hold a right attitude after it off for
     # tau and more (an upside-down start levelled at 3 s read as 35-60 deg off until 20 s)
-    mean = np.empty_like(f_n)
-    fresh = np.zeros(len(t), dtype=bool)  # within tau of the start or of a reset: not checked
     cuts = [np.searchsorted(t, r) for rows in est.resets.values() for r in np.asarray(rows)[:, 0]]
     bounds = np.unique(np.clip(np.r_[0, cuts, len(t)], 0, len(t)).astype(np.int64))
-    for i0, i1 in itertools.pairwise(bounds):
-        mean[i0:i1] = _check_mean(t[i0:i1], f_n[i0:i1], tau, dt)
-        fresh[i0:i1] = t[i0:i1] < t[i0] + tau
-    # |mean + g_n| = 2 g sin(theta / 2) for a tilt error theta; it also catches an attitude
-    # that follows every sample's specific force (its mean then stays vertical, but longer
-    # than g: the accelerations rectified)
-    mean[:, 2] += flight.site.gravity
-    off = np.linalg.norm(mean, axis=1) / (2.0 * flight.site.gravity)
-    angle = np.degrees(2.0 * np.arcsin(np.clip(off, 0.0, 1.0)))
+    angle, fresh = _mean_angles(t, f_n, bounds, tau, dt, flight.site.gravity)
     over = (angle > limit_deg) & ~fresh & ~unmeasured
     return _spans(t, over, angle, hold_s)
 
 
-def _check_mean(t: F64, f_n: F64, tau: float, dt: float) -> F64:
-    """The tilt check's mean of f_n (N, 3) at times t: the running mean until it spans tau
-    (VQF's start), then a first-order low-pass from it."""
-    n0 = max(1, int(np.searchsorted(t, t[0] + tau)))
-    head = np.cumsum(f_n[:n0], axis=0) / np.arange(1, n0 + 1)[:, None]
+@njit(cache=True, error_model="numpy")
+def _block_rotate(f_b: F64, q: F64, step: int) -> F64:
+    """The means of f_b (N, 3) over blocks of ``step`` samples (the last partial block left
+    out), each rotated into the nav frame by q (N, 4, q_nb) at the block's middle sample."""
+    m = f_b.shape[0] // step
+    out = np.empty((m, 3))
+    for b in range(m):
+        s0 = s1 = s2 = 0.0
+        for k in range(b * step, (b + 1) * step):
+            s0 += f_b[k, 0]
+            s1 += f_b[k, 1]
+            s2 += f_b[k, 2]
+        s0, s1, s2 = s0 / step, s1 / step, s2 / step
+        j = b * step + step // 2
+        c = _dcm9(q[j, 0], q[j, 1], q[j, 2], q[j, 3])
+        out[b, 0] = c[0] * s0 + c[1] * s1 + c[2] * s2
+        out[b, 1] = c[3] * s0 + c[4] * s1 + c[5] * s2
+        out[b, 2] = c[6] * s0 + c[7] * s1 + c[8] * s2
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _mean_angles(
+    t: F64, f_n: F64, bounds: NDArray[np.int64], tau: float, dt: float, g: float
+) -> tuple[F64, NDArray[np.bool_]]:
+    """The tilt check's angle (deg) between the mean of f_n (M, 3) at times t and -g_n, and
+    whether each row is within tau of its span's start (not checked). The mean starts again
+    at each of ``bounds`` (row indices: 0, the resets, M): the running mean until it spans
+    tau (VQF's start), then a first-order low-pass from it. |mean + g_n| = 2 g sin(theta / 2)
+    for a tilt error theta; it also catches an attitude that follows every sample's specific
+    force (its mean then stays vertical, but longer than g: the accelerations rectified)."""
+    m = t.shape[0]
+    angle = np.empty(m)
+    fresh = np.zeros(m, dtype=np.bool_)
     a = math.exp(-dt / tau)
-    tail = lfilter([1.0 - a], [1.0, -a], f_n[n0:], axis=0, zi=(a * head[-1])[None, :])[0]
-    return np.concatenate([head, tail])
+    for s in range(bounds.shape[0] - 1):
+        i0, i1 = bounds[s], bounds[s + 1]
+        m0 = m1 = m2 = 0.0
+        for i in range(i0, i1):
+            n = i - i0 + 1
+            if t[i] < t[i0] + tau:  # the running mean (not checked)
+                fresh[i] = True
+                m0 += (f_n[i, 0] - m0) / n
+                m1 += (f_n[i, 1] - m1) / n
+                m2 += (f_n[i, 2] - m2) / n
+            else:
+                m0 = a * m0 + (1.0 - a) * f_n[i, 0]
+                m1 = a * m1 + (1.0 - a) * f_n[i, 1]
+                m2 = a * m2 + (1.0 - a) * f_n[i, 2]
+            off = math.sqrt(m0 * m0 + m1 * m1 + (m2 + g) ** 2) / (2.0 * g)
+            angle[i] = math.degrees(2.0 * math.asin(min(max(off, 0.0), 1.0)))
+    return angle, fresh
 
 
 def _spans(t: F64, over: NDArray[np.bool_], value: F64, hold_s: float) -> F64:
