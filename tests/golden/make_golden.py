@@ -53,7 +53,8 @@ REGENERATED = {
              "VQF's filter start; max 1.9e-3 rad from stop 16, fixedwing_8); then lowpass_bias on by default "
              "(the means' gyro-bias columns; stop 20, max 0.106 rad on fixedwing_8, mekf's coordinated turns); "
              "then accel_fuse_rate 50 Hz by default (the gravity mean fused at 50 Hz with R / k while the "
-             "gain is small; stop 24, max 5.5e-4 rad, fixedwing_8)"),
+             "gain is small; stop 24, max 5.5e-4 rad, fixedwing_8); then mag_fuse_rate 10 Hz (the field's mean "
+             "likewise; stop 24, max 4.7e-4 rad from the previous, fixedwing_8)"),
     "ekf7": ("stop 19", "gravity as mekf takes it in the field (accel_lowpass 3 s, accel_noise_online): "
              "max 0.146 rad from stop 18 (fixedwing_8: the mean keeps a coordinated turn's acceleration), "
              "0.030 rad on quadrotor_8; the matched cases unchanged"),
@@ -186,7 +187,7 @@ def detail_cases() -> list[tuple[str, str, str, EskfParams | None, bool]]:
 #: Defaults that changed after addd942 on purpose, set back in the detail cases (which hold
 #: the core's mechanics to that commit; tests/test_golden.py holds the new defaults' answers).
 DETAIL_DEFAULTS_OF_ADDD942: dict[str, dict[str, Any]] = {
-    "mekf": {"accel_noise_online": False, "lowpass_bias": False, "accel_fuse_rate": 0.0},
+    "mekf": {"accel_noise_online": False, "lowpass_bias": False, "accel_fuse_rate": 0.0, "mag_fuse_rate": 0.0},
     "ekf7": {"accel_lowpass": 0.0, "accel_noise_online": False},
     "usque": {"accel_lowpass": 0.0, "accel_noise_online": False},
 }

@@ -13,7 +13,7 @@ aged with the mean by the kernel (``x[X_JLAG]``). Gate: ``| |f| - g | < accel_no
 sample logs NaN), then each innovation component within ``gate_accel`` sigmas.
 With accel_fuse_rate (error-state filters) the mean is fused at that rate rather than at
 every IMU sample, each fusion with R / k for the k samples it stands for, while the gain is
-small (:func:`samples_to_fuse`); its log then has a row per fusion, the NIS per sample.
+small (:func:`windahrs.core.kalman.samples_to_fuse`); its log then has a row per fusion, the NIS per sample.
 Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_noise_online,
 accel_noise_mean_start, accel_norm_gate, accel_compensation, accel_lowpass,
 lowpass_bias, accel_fuse_rate, gate_accel, reset_timeout, start_check.
@@ -35,8 +35,11 @@ from windahrs.core.kalman import (
     _fuse,
     _log,
     _vector_rows,
+    att_var_along,
     lag_age,
     lag_bias_rows,
+    per_sample_nis,
+    samples_to_fuse,
 )
 from windahrs.core.layout import (
     _JIT_CORE,
@@ -47,11 +50,9 @@ from windahrs.core.layout import (
     C_COMP,
     C_IBA,
     C_IBG,
-    C_OFF,
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
-    L_CNT,
     R_ACC_FUSE_DT,
     R_ACC_LP,
     R_ACC_VAR,
@@ -111,7 +112,7 @@ ACCEL_TURN_COS = 1.0 / (1.0 + ACCEL_TURN_NORM)
 #: ... and the low-passed means' gyro-bias columns (the Kalman filters that model them: not
 #: [usque], whose unscented update has no such columns).
 LAG_PARAMS = ("lowpass_bias",)
-#: ... and the mean fused at a lower rate (the error-state filters: samples_to_fuse).
+#: ... and the mean fused at a lower rate (the error-state filters: core.kalman.samples_to_fuse).
 FUSE_RATE_PARAMS = ("accel_fuse_rate",)
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = (
@@ -206,39 +207,6 @@ def accel_variance(cfg, prm, x):
     return prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
 
 
-#: The mean is fused below accel_fuse_rate only while the prior tilt variance, times g^2 (its
-#: share of the innovation's variance), is at most this fraction of the per-sample noise:
-#: there k samples fused as one with R / k update the state as the k did (the update is
-#: linear in the information while the gain is small); at a start or after a reset, whose
-#: gains are large, every sample is fused.
-DECIMATE_PRIOR_SHARE = 0.1
-
-
-@njit(inline="always", **_JIT_CORE)
-def samples_to_fuse(cfg, prm, x, flags, P, t, dt, var_rad2):
-    """How many IMU samples the gravity measurement at t s stands for (the samples since the
-    last fusion, this one included; 1 when every sample is fused), or 0 when it is not
-    fused now (accel_fuse_rate: the low-passed mean changes over accel_lowpass seconds, so
-    fusing it at every IMU sample only repeats it; it is fused once per 1 / accel_fuse_rate s,
-    with its noise R / k for the k samples it stands for, which keeps the information per
-    second). Only the error-state filters' mean, and only in the small-gain regime
-    (DECIMATE_PRIOR_SHARE; var_rad2: the sample's noise variance over g^2, rad^2)."""
-    n = x[X_NFUSE] + 1.0
-    fuse_dt = prm[R_ACC_FUSE_DT]
-    if fuse_dt > 0.0 and flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE and t - x[X_TGFUSE] < fuse_dt - 0.5 * dt:
-        # the tilt's prior variance: the attitude's less its part about the body's down u
-        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-        u0, u1, u2 = c[6], c[7], c[8]
-        vert = (u0 * (P[0, 0] * u0 + P[0, 1] * u1 + P[0, 2] * u2) + u1 * (P[1, 0] * u0 + P[1, 1] * u1 + P[1, 2] * u2)
-                + u2 * (P[2, 0] * u0 + P[2, 1] * u1 + P[2, 2] * u2))
-        if P[0, 0] + P[1, 1] + P[2, 2] - vert <= DECIMATE_PRIOR_SHARE * var_rad2:
-            x[X_NFUSE] = n
-            return 0.0
-    x[X_NFUSE] = 0.0
-    x[X_TGFUSE] = t
-    return n
-
-
 @njit(inline="always", **_JIT_CORE)
 def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     """The accelerometer of IMU sample ``row`` = [w_b, f_b] at t s, after the prediction
@@ -296,9 +264,13 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         _level_reset(cfg, prm, x, flags, P, work, inn, acc, t, gx, gy, gz)
         return
     var = accel_variance(cfg, prm, x)
-    kf = samples_to_fuse(cfg, prm, x, flags, P, t, dt, var / (g * g))
-    if kf == 0.0:  # (the mean is fused at accel_fuse_rate: this sample is in the next fusion)
-        return
+    kf = 1.0
+    if flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE:  # the mean at accel_fuse_rate, while its gain is small
+        tilt_var = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, c[6], c[7], c[8])  # (less the part about down)
+        kf = samples_to_fuse(x, np.int64(X_NFUSE), np.int64(X_TGFUSE), t, prm[R_ACC_FUSE_DT], 0.5 * dt,
+                             tilt_var, var / (g * g))
+        if kf == 0.0:  # (this sample is in the next fusion)
+            return
     var /= kf
     h0, h1, h2 = y0, y1, y2
     if has_k:
@@ -321,5 +293,4 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     # (gated as one sample: with R / k the innovation's variance is about 1 / k of a sample's,
     # while the mean's innovation is a sample's, so the gate opens by k)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_ACC] * kf)
-    if kf > 1.0:  # the NIS logged per sample: as if each of the kf samples had been fused
-        inn[cfg[C_OFF + INN_ACCEL] + flags[L_CNT + INN_ACCEL] - 1, 4] /= kf
+    per_sample_nis(cfg, flags, inn, sensor, kf)

@@ -26,12 +26,16 @@ from windahrs.core.kalman import (
     _fuse,
     _log,
     _vector_rows,
+    att_var_along,
     lag_age,
     lag_bias_rows,
+    per_sample_nis,
+    samples_to_fuse,
 )
 from windahrs.core.layout import (
     _JIT_CORE,
     ADD_COV,
+    ADD_NONE,
     C_ADD,
     C_HVERT,
     C_IBG,
@@ -46,6 +50,7 @@ from windahrs.core.layout import (
     R_GATE2_MAG,
     R_LAGB,
     R_MAG_DGATE,
+    R_MAG_FUSE_DT,
     R_MAG_LP,
     R_MAG_NGATE,
     R_MAG_SIGMA,
@@ -62,8 +67,10 @@ from windahrs.core.layout import (
     X_MAGN,
     X_MBAR,
     X_MGAIN,
+    X_NMFUSE,
     X_Q,
     X_TMBAR,
+    X_TMFUSE,
     X_TOK,
 )
 from windahrs.core.predict import (
@@ -98,6 +105,9 @@ LOST_HEADING = math.radians(45.0)
 
 #: ... and of its hard-iron states (error-state filters only).
 BIAS_PARAMS = ("init_mag_bias", "mag_bias_noise")
+#: ... and the low-passed field fused at a lower rate (the error-state filters:
+#: windahrs.core.kalman.samples_to_fuse).
+FUSE_RATE_PARAMS = ("mag_fuse_rate",)
 
 
 @njit(**_JIT_CORE)
@@ -173,13 +183,15 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, _heading_offset(cfg, x, mx, my, mz, rx, ry))
         return
     nu = work[W_NU]
+    dtm = 0.0  # the mean's last sample interval, s
     if prm[R_MAG_LP] > 0:  # fuse the low-passed field
         if flags[S_MBAR] == 0:
             x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2] = mx, my, mz
             lag_age(x, np.int64(X_JMAG), 1.0)
             flags[S_MBAR] = 1
         else:
-            a = steady_gain(x, np.int64(X_MGAIN), t - x[X_TMBAR], prm[R_MAG_LP])
+            dtm = t - x[X_TMBAR]
+            a = steady_gain(x, np.int64(X_MGAIN), dtm, prm[R_MAG_LP])
             x[X_MBAR] = x[X_MBAR] + a * (mx - x[X_MBAR])
             x[X_MBAR + 1] = x[X_MBAR + 1] + a * (my - x[X_MBAR + 1])
             x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])
@@ -196,12 +208,17 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     if heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
         return
+    kf = 1.0
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    if prm[R_MAG_LP] > 0 and cfg[C_ADD] == ADD_NONE:  # the mean at mag_fuse_rate, while its gain is small
+        kf = mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry)
+        if kf == 0.0:  # (this sample is in the next fusion)
+            return
     if mode == MAG_3D:
-        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
         y0 = c[0] * rx + c[3] * ry + c[6] * rz
         y1 = c[1] * rx + c[4] * ry + c[7] * rz
         y2 = c[2] * rx + c[5] * ry + c[8] * rz
-        _vector_rows(work, sup[0], y0, y1, y2, prm[R_MAG_VAR])
+        _vector_rows(work, sup[0], y0, y1, y2, prm[R_MAG_VAR] / kf)
         nsup = _mean_bias_rows(cfg, prm, x, flags, work, sup[0], np.int64(3), np.int64(3))
         h0, h1, h2 = y0, y1, y2
         ibm = cfg[C_IBM]
@@ -210,21 +227,22 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             nsup = _bias_rows(work, sup[0], ibm, nsup)
         nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
         m, ns = np.int64(3), np.int64(nsup)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG] * kf)
+        per_sample_nis(cfg, flags, inn, sensor, kf)
         return
     sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
     if cfg[C_HVERT] == 1:
         # the field's heading in the nav frame against the reference's, corrected about
         # the nav vertical only: H_att = third row of C_nb
-        c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
         n0 = c[0] * mx + c[1] * my + c[2] * mz
         n1 = c[3] * mx + c[4] * my + c[5] * mz
         nu[0] = _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
         work[W_H, 0], work[W_H, 1], work[W_H, 2] = c[6], c[7], c[8]
         sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
-        work[W_R, 0] = sigma**2
+        work[W_R, 0] = sigma**2 / kf
         m, ns = np.int64(1), np.int64(3)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG] * kf)
+        per_sample_nis(cfg, flags, inn, sensor, kf)
         return
     # heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate
     roll, pitch, yaw = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
@@ -232,9 +250,29 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     cp = math.cos(pitch)
     work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, math.sin(roll) / cp, math.cos(roll) / cp
     sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
-    work[W_R, 0] = sigma**2
+    work[W_R, 0] = sigma**2 / kf
     m, ns = np.int64(1), np.int64(3)
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG])
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG] * kf)
+    per_sample_nis(cfg, flags, inn, sensor, kf)
+
+
+@njit(inline="always", **_JIT_CORE)
+def mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry):
+    """How many magnetometer samples the low-passed field m (body) stands for, or 0 when it is
+    not fused now (:func:`windahrs.core.kalman.samples_to_fuse`, at mag_fuse_rate; dtm: the
+    mean's last sample interval, s; c: C_nb row-major). Its gain is small while the prior
+    attitude variance it measures, times the field's length squared, is at most
+    DECIMATE_PRIOR_SHARE of a sample's noise variance: in 3-D the attitude across the field
+    (across m), as heading the attitude about the vertical, against (mag_sigma / |m_n,h|)^2."""
+    if cfg[C_MAG] == MAG_3D:
+        mn2 = mx * mx + my * my + mz * mz
+        mn = math.sqrt(mn2) if mn2 > 0 else 1.0
+        across = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, mx / mn, my / mn, mz / mn)
+        prior, noise = across * mn2, prm[R_MAG_VAR]
+    else:
+        prior = att_var_along(P, c[6], c[7], c[8])
+        noise = (prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)) ** 2
+    return samples_to_fuse(x, np.int64(X_NMFUSE), np.int64(X_TMFUSE), t, prm[R_MAG_FUSE_DT], 0.5 * dtm, prior, noise)
 
 
 @njit(inline="always", **_JIT_CORE)

@@ -447,6 +447,47 @@ def lag_age(x, ij, a):
         x[ij + i] *= 1.0 - a
 
 
+#: A low-passed mean is fused below its rate (accel_fuse_rate, mag_fuse_rate) only while its
+#: gain is small: the prior variance of what it measures at most this fraction of a sample's
+#: noise variance. There k samples fused as one with R / k update the state as the k did (the
+#: information adds; the state hardly moves between them); at a start or after a reset, whose
+#: gains are large, every sample is fused.
+DECIMATE_PRIOR_SHARE = 0.1
+
+
+@njit(inline="always", **_JIT_CORE)
+def samples_to_fuse(x, i_n, i_t, t, fuse_dt, half_step, prior_var, noise_var):
+    """How many samples of a low-passed mean the measurement at t s stands for (the samples
+    since its last fusion, this one included; 1 when every sample is fused), or 0 when it is
+    not fused now. A mean changes over its time constant (seconds), so fusing it at every
+    sample repeats it: it is fused once per fuse_dt s (0: every sample), with R / k for the k
+    samples it stands for (the information per second kept), while prior_var <=
+    DECIMATE_PRIOR_SHARE noise_var. x[i_n]: samples since the last fusion, x[i_t]: its time;
+    half_step: half the stream's sample interval, s (a fusion falls due within it)."""
+    n = x[i_n] + 1.0
+    if fuse_dt > 0.0 and t - x[i_t] < fuse_dt - half_step and prior_var <= DECIMATE_PRIOR_SHARE * noise_var:
+        x[i_n] = n
+        return 0.0
+    x[i_n] = 0.0
+    x[i_t] = t
+    return n
+
+
+@njit(inline="always", **_JIT_CORE)
+def att_var_along(P, u0, u1, u2):
+    """u^T P_att u: the error state's attitude variance about the body axis u (unit), rad^2."""
+    return (u0 * (P[0, 0] * u0 + P[0, 1] * u1 + P[0, 2] * u2) + u1 * (P[1, 0] * u0 + P[1, 1] * u1 + P[1, 2] * u2)
+            + u2 * (P[2, 0] * u0 + P[2, 1] * u1 + P[2, 2] * u2))
+
+
+@njit(inline="always", **_JIT_CORE)
+def per_sample_nis(cfg, flags, inn, sensor, kf):
+    """The NIS just logged for ``sensor`` (by a fusion that stood for kf samples, with R /
+    kf: about kf times a sample's) divided by kf: the log keeps a sample's NIS."""
+    if kf > 1.0:
+        inn[cfg[C_OFF + sensor] + flags[L_CNT + sensor] - 1, 4] /= kf
+
+
 @njit(inline="always", **_JIT_CORE)
 def lag_bias_rows(work, sup, x, ij, ib, m, nsup):
     """The gyro-bias columns of a measurement made of a low-passed vector whose rotation

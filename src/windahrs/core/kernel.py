@@ -147,6 +147,7 @@ from windahrs.core.layout import (
     R_INI_WIN,
     R_LAGB,
     R_MAG_DGATE,
+    R_MAG_FUSE_DT,
     R_MAG_LP,
     R_MAG_NGATE,
     R_MAG_SIGMA,
@@ -845,6 +846,7 @@ def make_state(
     prm[R_SBM2] = p.mag_bias_noise**2
     prm[R_ACC_LP] = p.accel_lowpass
     prm[R_ACC_FUSE_DT] = 1.0 / p.accel_fuse_rate if p.accel_fuse_rate > 0 else 0.0
+    prm[R_MAG_FUSE_DT] = 1.0 / p.mag_fuse_rate if p.mag_fuse_rate > 0 else 0.0
     prm[R_MAG_LP] = p.mag_lowpass
     prm[R_SCALE2] = p.gyro_scale_noise**2
     prm[R_MAG_NGATE] = p.mag_norm_gate

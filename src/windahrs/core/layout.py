@@ -198,7 +198,8 @@ R_REST_CLIP = 70  # rest_bias_clip, rad/s
 R_LAGB = 71  # lowpass_bias: 1 the low-passed gravity and magnetometer measurements carry their gyro-bias columns
 R_P0_YAW = 72  # init_yaw^2, rad^2 (0: init_att's)
 R_ACC_FUSE_DT = 73  # 1 / accel_fuse_rate, s (0: the gravity aid fuses at every IMU sample)
-N_PRM = 74
+R_MAG_FUSE_DT = 74  # 1 / mag_fuse_rate, s (0: the magnetometer's mean fused at every sample)
+N_PRM = 75
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -256,7 +257,9 @@ X_RM = X_AVAR + 60  # (3,) running mean of the specific force since the start, b
 X_NRM = X_AVAR + 63  # samples in it (0: no start check pending)
 X_NFUSE = X_AVAR + 64  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
 X_TGFUSE = X_AVAR + 65  # when it was last fused, s
-N_X = X_AVAR + 66
+X_NMFUSE = X_AVAR + 66  # the same for the magnetometer's mean (aid.mag)
+X_TMFUSE = X_AVAR + 67
+N_X = X_AVAR + 68
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

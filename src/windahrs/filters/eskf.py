@@ -46,7 +46,8 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS, airspeed_sca
 #: constants), the accelerometer's noise (vibration) estimated on line,
 #: rate-proportional gyro noise, heading-only magnetometer about the vertical
 #: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg), and the
-#: means' gyro-bias columns (lowpass_bias); the gravity mean fused at 50 Hz (accel_fuse_rate).
+#: means' gyro-bias columns (lowpass_bias); the gravity mean fused at 50 Hz,
+#: the field's at 10 Hz (accel_fuse_rate, mag_fuse_rate).
 MEKF_FIELD = EskfParams(
     accel_lowpass=3.0,
     accel_fuse_rate=50.0,
@@ -55,6 +56,7 @@ MEKF_FIELD = EskfParams(
     mag_3d_needs_site=True,
     heading_model="vertical",
     mag_lowpass=9.0,
+    mag_fuse_rate=10.0,
     mag_norm_gate=0.1,
     mag_dip_gate=float(np.radians(10.0)),
     lowpass_bias=True,
@@ -81,6 +83,7 @@ class Mekf(CompiledEstimator):
         gravity.FUSE_RATE_PARAMS,
         mag.PARAMS,
         mag.BIAS_PARAMS,
+        mag.FUSE_RATE_PARAMS,
     )
 
 
@@ -118,6 +121,7 @@ class InsWind(CompiledEstimator):
         gnss_vel.PARAMS,
         mag.PARAMS,
         mag.BIAS_PARAMS,
+        mag.FUSE_RATE_PARAMS,
         *_AIR,
         drag.PARAMS,
     )

@@ -128,7 +128,7 @@ class EskfParams:
     accel_fuse_rate Hz (with accel_lowpass; error-state filters): the mean is fused at this
     rate rather than at every IMU sample, each fusion with R / k for the k samples it stands
     for (the information per second kept), while the gain is small (the prior tilt variance
-    under a tenth of the sample's noise: ``aid.gravity.samples_to_fuse``; every sample at a
+    under a tenth of the sample's noise: ``core.kalman.samples_to_fuse``; every sample at a
     start or after a reset). The mean changes over accel_lowpass seconds, so fusing it at
     every sample repeats it; the update was 43 % of [mekf]'s per-sample time ([mekf]
     default 50 Hz, 0: every sample; docs/RESULTS.md section 25 gives its measured effect).
@@ -177,7 +177,10 @@ class EskfParams:
     ``C_nb m`` against the reference's, corrected by a rotation about the nav vertical
     only, ``H_att = (C_bn e_3)^T``: no tilt terms, no singularity; [mekf] default).
     mag_lowpass s: the magnetometer low-passed like the specific force (accel_lowpass),
-    the mean fused ([mekf] default 9 s, VQF's tau_mag; 0: raw samples). Disturbance
+    the mean fused ([mekf] default 9 s, VQF's tau_mag; 0: raw samples). mag_fuse_rate Hz
+    (with mag_lowpass; error-state filters): that mean fused at this rate, as accel_fuse_rate
+    does the gravity mean ([mekf] default 10 Hz: the mean changes over 9 s; 0: every
+    sample). Disturbance
     checks on the fused field m (0: off): rejected when ``| |m| - |m_ref| | >
     mag_norm_gate |m_ref|`` or when its dip in the nav frame (estimated attitude) is more
     than mag_dip_gate rad from the reference's ([mekf] defaults 0.1 and 10 deg, VQF's).
@@ -316,6 +319,7 @@ class EskfParams:
     mag_3d_needs_site: bool = False
     heading_model: Literal["yaw", "vertical"] = "yaw"
     mag_lowpass: float = 0.0
+    mag_fuse_rate: float = 0.0
     mag_norm_gate: float = 0.0
     mag_dip_gate: float = 0.0
     gnss_sigma: float = 0.2
