@@ -3,6 +3,7 @@ filters run, failures collected, and the one alignment with its explicit fallbac
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -188,3 +189,22 @@ def test_estimate_keeps_its_output_when_the_reference_misses_the_flight(
     )
     assert main(["compare", str(path), "--filters", "mekf"]) == 2  # compare has nothing to show: an error
     assert "no sample overlaps the estimate in time" in capsys.readouterr().err
+
+
+def test_auto_says_in_json_which_estimator_it_ran(recording: wa.Flight) -> None:
+    """``--json`` rows of ``compare`` and ``bench-data`` name the estimator ``auto`` chose (it
+    was on stderr only), and other filters' rows carry no such field."""
+    import json
+
+    from windahrs.experiments.benchdata import TrialScore
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = cmp.compare(recording, ["mekf", "auto"])
+    rows = json.loads(json.dumps(res.as_json(), allow_nan=False))
+    assert "ran" not in rows[0]
+    assert rows[1]["filter"] == "auto" and rows[1]["ran"] == "ins-wind"  # the paper flight has GNSS
+    assert set(rows[1]["sensors"].split(",")) >= {"imu", "gnss"}
+    row = TrialScore("t", "auto", 1.0, 0.5, 0.8, 10, 0.1, ran="mekf").as_dict()
+    assert row["ran"] == "mekf" and list(row)[:2] == ["trial", "filter"]
+    assert "ran" not in TrialScore("t", "mekf", 1.0, 0.5, 0.8, 10, 0.1).as_dict()

@@ -150,6 +150,8 @@ class TrialScore:
     samples: int
     seconds: float
     error: str | None = None
+    #: the estimator an ``auto`` spec ran (``Estimate.meta["auto"]``), None for the others
+    ran: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -158,11 +160,12 @@ class TrialScore:
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON row: trial, filter, the three RMSE figures, ``samples`` (scored) and
-        ``seconds`` (run time), as the text table shows them; or trial, filter and ``error``
-        for a filter that failed on the trial."""
+        ``seconds`` (run time), as the text table shows them, and ``ran`` for an ``auto``
+        spec (the estimator it chose); or trial, filter and ``error`` for a filter that failed
+        on the trial."""
         if self.error is not None:
             return {"trial": self.trial, "filter": self.filter, "error": self.error}
-        return {
+        row: dict[str, Any] = {
             "trial": self.trial,
             "filter": self.filter,
             "total_deg": self.total_deg,
@@ -171,6 +174,15 @@ class TrialScore:
             "samples": self.samples,
             "seconds": _json_float(self.seconds),
         }
+        if self.ran is not None:
+            row["ran"] = self.ran
+        return row
+
+
+def _auto_ran(est: Estimate) -> str | None:
+    """The estimator an ``auto`` Estimate ran (its ``meta["auto"]``), None for the others."""
+    ran = est.meta.get("auto")
+    return None if ran is None else str(ran)
 
 
 @dataclass(frozen=True)
@@ -532,6 +544,7 @@ def bench_data(
                     heading_deg=_rms_deg(err.heading),
                     samples=len(err.index),
                     seconds=seconds,
+                    ran=_auto_ran(result),
                 )
             )
         scored_names.append(name)

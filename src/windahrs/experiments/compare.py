@@ -337,9 +337,15 @@ class CompareResult:
 
     def as_json(self) -> list[dict[str, object]]:
         """One dict per filter: its score (null where a span has no scored reference
-        sample: JSON has no NaN) and, when aligned, the alignment's fields."""
+        sample: JSON has no NaN), ``ran`` and ``sensors`` for an ``auto`` spec (the estimator
+        it chose and the streams it used) and, when aligned, the alignment's fields."""
         extra = self.alignment.fields()
-        return [{**_json_score(r.as_dict()), **extra} for r in self.rows]
+        out = []
+        for r, (_, est) in zip(self.rows, self.estimates, strict=True):
+            ran = est.meta.get("auto")
+            chosen = {} if ran is None else {"ran": str(ran), "sensors": str(est.meta.get("sensors", ""))}
+            out.append({**_json_score(r.as_dict()), **chosen, **extra})
+        return out
 
     def scale_lines(self) -> list[str]:
         """One line per filter that estimated the airspeed scale on line (``airspeed_scale``)."""
