@@ -208,3 +208,14 @@ def test_auto_says_in_json_which_estimator_it_ran(recording: wa.Flight) -> None:
     row = TrialScore("t", "auto", 1.0, 0.5, 0.8, 10, 0.1, ran="mekf").as_dict()
     assert row["ran"] == "mekf" and list(row)[:2] == ["trial", "filter"]
     assert "ran" not in TrialScore("t", "mekf", 1.0, 0.5, 0.8, 10, 0.1).as_dict()
+
+
+def test_the_header_says_when_a_heading_offset_was_removed(recording: wa.Flight) -> None:
+    ref = recording.reference
+    assert ref is not None
+    mocap = recording.replace(reference=Reference(t=ref.t, q_nb=ref.q_nb, kind="mocap", heading_free=True))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        free, logged = cmp.compare(mocap, "mekf"), cmp.compare(recording, "mekf")
+    assert "a constant heading offset removed per filter" in free.table().splitlines()[0]
+    assert "heading offset" not in logged.table()

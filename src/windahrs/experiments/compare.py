@@ -310,6 +310,9 @@ class CompareResult:
     rows: tuple[Score, ...]
     estimates: tuple[tuple[str, Estimate], ...]
     alignment: AlignmentOutcome = AlignmentOutcome()
+    #: the reference has no heading datum (mocap): each filter's constant heading offset was
+    #: removed before scoring (:func:`windahrs.metrics.attitude_errors`)
+    heading_free: bool = False
 
     @property
     def aligned(self) -> bool:
@@ -319,8 +322,9 @@ class CompareResult:
         """The RMSE table in degrees: per axis from sample 50 and over the second half,
         tilt and total."""
         rows = self.rows
-        lines = [f"RMSE in deg against {rows[0].reference}{' (aligned)' if self.aligned else ''}; "
-                 "from sample 50 | second half"]
+        free = "; a constant heading offset removed per filter (the reference has no heading datum)"
+        lines = [f"RMSE in deg against {rows[0].reference}{' (aligned)' if self.aligned else ''}"
+                 f"{free if self.heading_free else ''}; from sample 50 | second half"]
         axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
         width = max(14, *(len(r.filter) + 1 for r in rows))
         lines.append(f"{'filter':<{width}}{axes}{axes}{'tilt':>8}{'total':>8}")
@@ -405,7 +409,8 @@ def compare(
         results += rest
     scored = outcome.apply(flight)
     rows = tuple(score(est, scored) for _, est in results)
-    return CompareResult(rows=rows, estimates=tuple(results), alignment=outcome)
+    free = scored.truth is None and scored.reference is not None and scored.reference.heading_free
+    return CompareResult(rows=rows, estimates=tuple(results), alignment=outcome, heading_free=free)
 
 
 # ---------------------------------------------------------------------------------------
