@@ -107,6 +107,19 @@ def test_tilt_check_flags_a_wrong_attitude_and_passes_a_right_one() -> None:
     assert 10.0 < deg < 21.0
 
 
+def test_a_flight_shorter_than_one_check_block_is_run_and_not_checked() -> None:
+    """Nine IMU samples at 200 Hz are less than the tilt check's one block (20 Hz): nothing
+    to check (before: an IndexError from the GNSS outage mask of no block, out of run())."""
+    flight = wa.simulate("fixedwing", wind=8.0, duration=5.0, seed=3)
+    imu = dataclasses.replace(flight.imu, t=flight.imu.t[:9], w_b=flight.imu.w_b[:9], f_b=flight.imu.f_b[:9])
+    short = flight.replace(imu=imu)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = wa.estimator("mekf:init_window=0").run(short)
+    assert len(est.t) == 9 and "tilt" not in est.alerts
+    assert tilt_alerts(est, short).shape == (0, 3)
+
+
 def test_a_real_flight_that_diverges_is_flagged_and_warned() -> None:
     """ANSFL Horizontal/path_20 (Xsens DOT on a DJI quadrotor, rotor vibration): [mekf] with
     its on-line accelerometer noise low-passed from zero and no bias columns on its means

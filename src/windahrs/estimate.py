@@ -44,6 +44,10 @@ STATE_LABELS: dict[str, tuple[str, ...]] = {
 
 #: Below this share of a gated sensor's samples accepted over a flight, the Estimate warns.
 LOW_ACCEPTANCE = 0.5
+#: The longest a log row stands for in :meth:`Innovations.accepted_share`: the time after
+#: which a stream without a sample is absent (windahrs.flags.absent_after: five sample
+#: intervals, at least 0.5 s), neither accepted nor rejected.
+ROW_SPAN_PERIODS, ROW_SPAN_MIN_S = 5.0, 0.5
 
 
 class EstimatorWarning(UserWarning):
@@ -71,6 +75,26 @@ class Innovations:
     @property
     def dim(self) -> int:
         return int(self.nu.shape[1]) if self.nu.ndim == 2 else 1
+
+    def accepted_share(self) -> float:
+        """The share of the logged time the updates were accepted (1 without rows): each row
+        stands for the time to the next (the last row: the median interval), at most
+        :data:`ROW_SPAN_PERIODS` median intervals or :data:`ROW_SPAN_MIN_S`. A mean fused
+        below its rate (accel_fuse_rate, mag_fuse_rate) logs a row per fusion, of k samples,
+        but a row per sample that its disturbance gate keeps out, so the share of rows
+        undercounts the accepted ones (measured: 36 % of the rows, 55 % of the samples, on a
+        quadrotor whose field was off by 40 % for 20 of 60 s, [mekf]); for a log of a row per
+        sample it is the share of rows."""
+        n = len(self.t)
+        if n == 0:
+            return 1.0
+        if n == 1:
+            return float(self.accepted[0])
+        d = np.diff(self.t)
+        period = float(np.median(d))
+        w = np.minimum(np.append(d, period), max(ROW_SPAN_PERIODS * period, ROW_SPAN_MIN_S))
+        total = float(w.sum())
+        return float(np.dot(w, self.accepted) / total) if total > 0 else float(np.mean(self.accepted))
 
 
 class Deferred:
@@ -291,7 +315,7 @@ class Estimate:
                        f"{len(lost) - n_range} spikes), the first at t = {lost[0, 0]:.2f} s")
         for sensor, inn in self.innovations.items():
             n = len(inn.accepted)
-            share = float(np.mean(inn.accepted)) if n else 1.0
+            share = inn.accepted_share()
             if n >= 10 and share < LOW_ACCEPTANCE:
                 out.append(f"{self.filter}: only {100 * share:.0f} % of {n} {sensor} samples accepted "
                            "(gated out: a disturbed sensor, or a lost state)")

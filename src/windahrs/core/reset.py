@@ -38,6 +38,8 @@ from windahrs.core.layout import (
     W_M,
     W_NU,
     X_BG,
+    X_NFUSE,
+    X_NMFUSE,
     X_Q,
     X_TOK,
 )
@@ -96,7 +98,12 @@ def reopen(cfg, P, i0, var, var_last):
 def set_attitude_cov(cfg, prm, x, P, work):
     """The attitude's spread to init_att^2 per axis, uncorrelated with the other states
     (additive form: on the quaternion, ``1/4 Xi var Xi^T``); with init_yaw > 0, init_yaw^2
-    about the nav vertical (body direction ``d = C_bn e_3``: ``var I + (var_yaw - var) d d^T``)."""
+    about the nav vertical (body direction ``d = C_bn e_3``: ``var I + (var_yaw - var) d d^T``).
+    The low-passed means' samples not yet fused (core.kalman.samples_to_fuse) are dropped:
+    the information they stood for is what the reopened spread discards, and the next
+    fusion, in the large-gain regime, stands for its own sample only."""
+    x[X_NFUSE] = 0.0
+    x[X_NMFUSE] = 0.0
     var = prm[R_P0_ATT]
     if prm[R_P0_YAW] > 0.0:
         _set_attitude_cov_yaw(cfg, prm, x, P, work)

@@ -98,6 +98,8 @@ def tilt_alerts(
     # block means of the samples, rotated with the block's middle attitude
     dt = float(np.median(np.diff(t)))
     step = max(1, int(1.0 / (CHECK_RATE_HZ * dt)))
+    if len(t) < step:  # not one block (a flight shorter than 1 / CHECK_RATE_HZ): nothing to check
+        return np.empty((0, 3))
     f_n = _block_rotate(_fill(imu.f_b), _fill(est.q_nb), step)  # a_n - g_n for a right attitude
     n = len(t) // step * step
     t = t[step // 2 : n : step]

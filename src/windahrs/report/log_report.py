@@ -415,7 +415,7 @@ def _innovation_section(results: Sequence[tuple[str, Estimate]]) -> Section:
             nis = inn.nis[np.isfinite(inn.nis)]
             lo, hi = chi2_band(inn.dim, 1)
             inside = float(np.mean((nis >= lo) & (nis <= hi)) * 100) if len(nis) else math.nan
-            acc = float(np.mean(inn.accepted) * 100) if len(inn.t) else math.nan
+            acc = inn.accepted_share() * 100 if len(inn.t) else math.nan  # (of the time: fusion rates)
             mean = float(np.mean(nis)) if len(nis) else math.nan
             if math.isfinite(inside):
                 highlight[(len(rows), 8)] = "good" if inside >= 80.0 else "bad"
