@@ -486,3 +486,27 @@ def test_alfa_wind_against_the_autopilot(spec: str) -> None:
     assert abs(d_err) <= 30.0, f"{spec}: mean wind direction off by {d_err:.1f} deg"
     assert abs(s_est - s_ref) <= 1.5, f"{spec}: mean wind speed {s_est:.2f} vs {s_ref:.2f} m/s"
 
+
+
+def test_an_alignment_of_little_common_motion_is_flagged() -> None:
+    """The mount and offset are unreliable when the residual is large or the two series'
+    body rates hardly agree (a vehicle at rest: PX4 sample_log_small.ulg, agreement 0.198)."""
+    from windahrs.experiments.align import ALIGN_MIN_RATE_AGREEMENT, alignment_warning
+
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    assert alignment_warning(Alignment(q, 0.0, correlation=0.99, residual_deg=1.0)) is None
+    low = alignment_warning(Alignment(q, 0.0, correlation=0.198, residual_deg=3.2))
+    assert low is not None and "agree by only 0.198" in low and "unreliable" in low
+    assert alignment_warning(Alignment(q, 0.0, correlation=ALIGN_MIN_RATE_AGREEMENT, residual_deg=1.0)) is None
+    big = alignment_warning(Alignment(q, 0.0, correlation=0.99, residual_deg=6.0))
+    assert big is not None and "residual" in big
+
+
+def test_px4_at_rest_alignment_is_flagged() -> None:
+    path = require_data("px4", "sample_log_small.ulg")
+    flight = read_flight(path)
+    from windahrs.experiments.align import alignment_warning
+
+    est = make_estimator("vqf").run(flight)
+    al = estimate_alignment(est, flight)
+    assert al.correlation < 0.5 and alignment_warning(al) is not None  # measured 0.198

@@ -880,7 +880,8 @@ _ALIGN_FIT = (
     "scored against the same reference (fitting each filter its own would also hide its constant errors); "
 )
 _ALIGN_REST = (
-    "Needs a logged reference (mocap or autopilot); a residual over 5 deg is flagged as an unreliable alignment. "
+    "Needs a logged reference (mocap or autopilot); a residual over 5 deg, or body rates that agree by under 0.5 "
+    "(too little common motion), is flagged as an unreliable alignment. "
     "A GNSS the flight declares on the reference's clock (meta gnss.clock=reference, as ANSFL's) is moved by the "
     "same offset, its timing uncertainty lowered to the fit's, for every filter after the first"
 )
@@ -900,7 +901,8 @@ BENCH_ALIGN_HELP = (
     "and the FIRST filter's estimate (put the most accurate first) and remove that one alignment for every "
     "filter, as compare --align does; printed above each recording's table (in --json: 'alignment' by "
     "recording). A recording whose first filter does not run, or whose fit fails, is scored against the reference "
-    "as logged, and says so; a residual over 5 deg is flagged as an unreliable alignment. A GNSS the recording "
+    "as logged, and says so; a residual over 5 deg, or body rates that agree by under 0.5 (too little common "
+    "motion), is flagged as an unreliable alignment. A GNSS the recording "
     "declares on the reference's clock (meta gnss.clock=reference, as ANSFL's) is moved by the same offset, its "
     "timing uncertainty lowered to the fit's, for every filter after the first"
 )

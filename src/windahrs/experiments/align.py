@@ -58,6 +58,7 @@ from windahrs.rotation import (
 )
 
 __all__ = [
+    "ALIGN_MIN_RATE_AGREEMENT",
     "ALIGN_RESIDUAL_DEG",
     "GNSS_CLOCK_KEY",
     "GNSS_ON_REFERENCE_CLOCK",
@@ -77,6 +78,14 @@ F64 = NDArray[np.float64]
 
 #: Above this residual (deg) an alignment is reported as unreliable.
 ALIGN_RESIDUAL_DEG = 5.0
+#: ... and below this agreement of the two series' body rates (the correlation score of the
+#: time-offset fit, 1: identical). Under 0.5 the two share less than a quarter of their rate
+#: variance (r^2 < 0.25): too little common motion to place the clock offset, or to tell a
+#: mount from a constant attitude error (a vehicle at rest: any heading difference fits as
+#: the mount's yaw). Measured: 0.96-0.999 on every recording in ../shared/data that
+#: moves (16 ANSFL flights, PX4 sample.ulg, ALFA), 0.198 on PX4 sample_log_small.ulg, a
+#: vehicle on the ground whose 9.4 deg of heading difference the fit called mount.
+ALIGN_MIN_RATE_AGREEMENT = 0.5
 
 #: ``Flight.meta`` key a reader sets to say on which clock the GNSS stream is stamped; the
 #: value :data:`GNSS_ON_REFERENCE_CLOCK` means the reference's (both logged by one device),
@@ -391,11 +400,20 @@ def describe_alignment(alignment: Alignment, aligned_on: str | None = None) -> s
 def alignment_warning(alignment: Alignment) -> str | None:
     """Why an alignment should not be trusted, or None: what remains after it is more than
     ALIGN_RESIDUAL_DEG, so the estimate it was fitted on differs from the reference by more
-    than a constant rotation and the fit absorbed part of that estimator's error."""
+    than a constant rotation and the fit absorbed part of that estimator's error; or the two
+    series' body rates agree by less than ALIGN_MIN_RATE_AGREEMENT, so they share too little
+    motion to fit a clock offset or tell a mount from a constant error."""
     if alignment.residual_deg > ALIGN_RESIDUAL_DEG or not math.isfinite(alignment.residual_deg):
         return (
             f"the residual after alignment ({alignment.residual_deg:.3g} deg) exceeds {ALIGN_RESIDUAL_DEG:g} deg: "
             "the estimate it was fitted on differs from the reference by more than a constant rotation, so the "
             "mount and offset are unreliable; judge the scores against the reference as logged"
+        )
+    if alignment.correlation < ALIGN_MIN_RATE_AGREEMENT:
+        return (
+            f"the body rates of the reference and the estimate agree by only {alignment.correlation:.3g} "
+            f"(1: identical; under {ALIGN_MIN_RATE_AGREEMENT:g} they share under a quarter of their motion): too "
+            "little common motion to fit the clock offset or to tell a mount from a constant attitude error, so "
+            "the mount and offset are unreliable; judge the scores against the reference as logged"
         )
     return None
