@@ -510,3 +510,5 @@ def test_px4_at_rest_alignment_is_flagged() -> None:
     est = make_estimator("vqf").run(flight)
     al = estimate_alignment(est, flight)
     assert al.correlation < 0.5 and alignment_warning(al) is not None  # measured 0.198
+    line = benchdata._alignment_line(benchdata.AlignmentOutcome(alignment=al, aligned_on="vqf", warning="x"))
+    assert line.endswith("(unreliable: rate agreement under 0.5: too little common motion)")
