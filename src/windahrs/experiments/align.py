@@ -72,6 +72,7 @@ __all__ = [
     "estimate_alignment",
     "quat_average",
     "unaligned_clock_note",
+    "unreliable_reason",
 ]
 
 F64 = NDArray[np.float64]
@@ -397,23 +398,37 @@ def describe_alignment(alignment: Alignment, aligned_on: str | None = None) -> s
     )
 
 
-def alignment_warning(alignment: Alignment) -> str | None:
-    """Why an alignment should not be trusted, or None: what remains after it is more than
-    ALIGN_RESIDUAL_DEG, so the estimate it was fitted on differs from the reference by more
-    than a constant rotation and the fit absorbed part of that estimator's error; or the two
-    series' body rates agree by less than ALIGN_MIN_RATE_AGREEMENT, so they share too little
-    motion to fit a clock offset or tell a mount from a constant error."""
+def _unreliable(alignment: Alignment) -> tuple[str, str] | None:
+    """Why an alignment should not be trusted, in a few words and in full, or None: what
+    remains after it is more than ALIGN_RESIDUAL_DEG, so the estimate it was fitted on
+    differs from the reference by more than a constant rotation and the fit absorbed part of
+    that estimator's error; or the two series' body rates agree by less than
+    ALIGN_MIN_RATE_AGREEMENT, so they share too little motion to fit a clock offset or tell a
+    mount from a constant error."""
     if alignment.residual_deg > ALIGN_RESIDUAL_DEG or not math.isfinite(alignment.residual_deg):
-        return (
+        return f"residual over {ALIGN_RESIDUAL_DEG:g} deg", (
             f"the residual after alignment ({alignment.residual_deg:.3g} deg) exceeds {ALIGN_RESIDUAL_DEG:g} deg: "
             "the estimate it was fitted on differs from the reference by more than a constant rotation, so the "
             "mount and offset are unreliable; judge the scores against the reference as logged"
         )
     if alignment.correlation < ALIGN_MIN_RATE_AGREEMENT:
-        return (
+        return f"rate agreement under {ALIGN_MIN_RATE_AGREEMENT:g}: too little common motion", (
             f"the body rates of the reference and the estimate agree by only {alignment.correlation:.3g} "
             f"(1: identical; under {ALIGN_MIN_RATE_AGREEMENT:g} they share under a quarter of their motion): too "
             "little common motion to fit the clock offset or to tell a mount from a constant attitude error, so "
             "the mount and offset are unreliable; judge the scores against the reference as logged"
         )
     return None
+
+
+def unreliable_reason(alignment: Alignment) -> str | None:
+    """In a few words, why an alignment should not be trusted (:func:`alignment_warning` says
+    it in full), or None."""
+    why = _unreliable(alignment)
+    return None if why is None else why[0]
+
+
+def alignment_warning(alignment: Alignment) -> str | None:
+    """Why an alignment should not be trusted, in full, or None (:func:`_unreliable`)."""
+    why = _unreliable(alignment)
+    return None if why is None else why[1]

@@ -56,7 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.estimate import Estimate
-from windahrs.experiments.align import ALIGN_MIN_RATE_AGREEMENT, ALIGN_RESIDUAL_DEG
+from windahrs.experiments.align import unreliable_reason
 from windahrs.experiments.compare import AlignmentOutcome, align_reference, nothing_to_align, run_estimators
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import Flight
@@ -298,11 +298,8 @@ def _alignment_json(outcome: AlignmentOutcome) -> dict[str, Any]:
 def _alignment_line(outcome: AlignmentOutcome) -> str:
     al = outcome.alignment
     if outcome.text is not None and al is not None:
-        if not outcome.warning:
-            return outcome.text
-        why = (f"residual over {ALIGN_RESIDUAL_DEG:g} deg" if not al.residual_deg <= ALIGN_RESIDUAL_DEG
-               else f"rate agreement under {ALIGN_MIN_RATE_AGREEMENT:g}: too little common motion")
-        return f"{outcome.text} (unreliable: {why})"
+        why = unreliable_reason(al) if outcome.warning else None
+        return outcome.text if why is None else f"{outcome.text} (unreliable: {why})"
     if outcome.skipped is not None:
         return f"not aligned: {outcome.skipped}"
     return f"not aligned ({outcome.failed}): scored against the reference as logged"
