@@ -265,7 +265,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         return
     var = accel_variance(cfg, prm, x)
     kf = 1.0
-    if flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE:  # the mean at accel_fuse_rate, while its gain is small
+    if flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE and prm[R_ACC_FUSE_DT] > 0:  # at accel_fuse_rate
         tilt_var = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, c[6], c[7], c[8])  # (less the part about down)
         kf = samples_to_fuse(x, np.int64(X_NFUSE), np.int64(X_TGFUSE), t, prm[R_ACC_FUSE_DT], 0.5 * dt,
                              tilt_var, var / (g * g))

@@ -210,7 +210,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     kf = 1.0
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    if prm[R_MAG_LP] > 0 and cfg[C_ADD] == ADD_NONE:  # the mean at mag_fuse_rate, while its gain is small
+    if prm[R_MAG_LP] > 0 and cfg[C_ADD] == ADD_NONE and prm[R_MAG_FUSE_DT] > 0:  # the mean at mag_fuse_rate
         kf = mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry)
         if kf == 0.0:  # (this sample is in the next fusion)
             return
