@@ -128,10 +128,12 @@ MIN_AIR_SPEED = 0.5
 #: Reasons a sample was not fused, in the order of the counters.
 UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
 
+# The arrays extend the core's (core.layout); the names below are this family's own and
+# differ from the core's, whose slots before them keep their meaning.
 # cfg (int64): fixed for a run; after the core's fields (core.layout: C_N, C_ADD = ADD_COV,
 # no error-state blocks, the log layout)
-C_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
-N_CFG = core.N_CFG + 5
+C_PAPER_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
+N_CFG_ADD = core.N_CFG + 5
 # prm (float64): parameters; after the core's fields (core.layout: the process noise of
 # core.predict's additive model, R_SG2 = gyro_noise^2 and R_SB2 = gyro_bias_rw^2; the rest 0)
 _PRM0 = core.N_PRM
@@ -139,20 +141,20 @@ R_P0_VAR = _PRM0 + 0  # paper: initial variance per quaternion parameter
 R_ATT0_VAR = _PRM0 + 1  # initial attitude variance per axis, rad^2
 R_BG0_VAR = _PRM0 + 2  # initial gyro-bias variance per axis
 R_Q_VAR = _PRM0 + 3  # paper: process variance per quaternion parameter per step
-R_ACC_VAR = _PRM0 + 4  # paper: accelerometer variance per component
-R_MAG_VAR = _PRM0 + 5  # paper: magnetometer variance per component
+R_PAPER_ACC_VAR = _PRM0 + 4  # paper: accelerometer variance per component
+R_PAPER_MAG_VAR = _PRM0 + 5  # paper: magnetometer variance per component
 R_AIR_VAR = _PRM0 + 6  # paper: air-flow variance per component
 R_GNSS_AGE = _PRM0 + 7  # paper: oldest GNSS velocity the air row uses, s
 R_ACC_NOISE = _PRM0 + 8  # accelerometer white-noise density
 R_ACC_UNIT2 = _PRM0 + 9  # extra variance of the normalised accelerometer
 R_MAG_NOISE = _PRM0 + 10  # magnetometer noise per sample, T
 R_MAG_UNIT2 = _PRM0 + 11  # extra variance of the normalised magnetometer
-R_GRAV = _PRM0 + 12  # |g|, m/s^2
+R_G_NORM = _PRM0 + 12  # |g|, m/s^2
 R_SPREAD = _PRM0 + 13  # UKF: n + lambda
-R_SITE_MAG = _PRM0 + 14  # (3,) the site's field, or 0
+R_SITE_FIELD = _PRM0 + 14  # (3,) the site's field, or 0
 R_QSTART = _PRM0 + 17  # (4,) fixed initial attitude
 R_B0 = _PRM0 + 21  # (3,) initial gyro bias
-N_PRM = _PRM0 + 24
+N_PRM_ADD = _PRM0 + 24
 # s (float64): the remembered samples
 S_TIMU, S_TSTATE, S_DT = 0, 1, 2
 S_F = 3  # (3,) last specific force
@@ -165,14 +167,14 @@ N_S = 14
 # K_SKIP (4,), NaN samples skipped: imu, mag, gnss, air)
 F_READY, F_TIMU, F_F, F_MAGREF, F_V = range(core.N_FLAGS, core.N_FLAGS + 5)
 K_UNF = core.N_FLAGS + 5  # (4,) samples not fused, UNFUSED order
-N_FLAGS = core.N_FLAGS + 9
+N_FLAGS_ADD = core.N_FLAGS + 9
 
 _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer's reading
 
 
 class KernelState(NamedTuple):
-    """Everything a running filter needs, in arrays: cfg (N_CFG,) int64, prm (N_PRM,),
-    s (N_S,) remembered samples, flags (N_FLAGS,) int64, x (n,), P (n, n), wm and wc
+    """Everything a running filter needs, in arrays: cfg (N_CFG_ADD,) int64, prm (N_PRM_ADD,),
+    s (N_S,) remembered samples, flags (N_FLAGS_ADD,) int64, x (n,), P (n, n), wm and wc
     (2n+1,) unscented weights (UKF; (1,) otherwise), and as in core.layout.KernelState:
     work (N_WORK, NMAX) scratch rows, sup (2, NMAX) the columns of H (row 1: all n),
     inn (L, 5) innovation log rows [t, nu (3), nis], acc (L,) accepted."""
@@ -231,7 +233,7 @@ def _start(cfg, prm, flags, x, P, q_raw):
     for i in range(n):
         for j in range(n):
             P[i, j] = 0.0
-    if cfg[C_KIND] == KIND_PAPER and cfg[C_P0_ISO] == 1:
+    if cfg[C_PAPER_KIND] == KIND_PAPER and cfg[C_P0_ISO] == 1:
         for i in range(4):
             P[i, i] = prm[R_P0_VAR]
     else:
@@ -261,7 +263,7 @@ def _predict(cfg, prm, x, P, wm, wc, work, w_b, dt):
     without a gyro-bias state, the core's additive prediction (``core.predict._predict_add``,
     [ekf7]'s). [ukf]: the sigma points through ``q * Exp((w - b) dt)``, SPEC 2.3's Q
     (``core.predict._noise_add``)."""
-    kind = cfg[C_KIND]
+    kind = cfg[C_PAPER_KIND]
     if kind == KIND_PAPER:
         # The paper's filter has no bias state: the raw gyro drives eq. 6.
         Phi = transition_picard4(w_b * dt)
@@ -331,7 +333,7 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor
     columns ``sup[1, :4]``) and no gate (these filters fuse every sample: the gate at
     infinity accepts every finite innovation), then its normalisation. The UKF: the
     unscented update, the normalisation, the log row (accepted)."""
-    if cfg[C_KIND] == KIND_UKF:
+    if cfg[C_PAPER_KIND] == KIND_UKF:
         S = sigma_points(x, P, prm[R_SPREAD])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
@@ -376,11 +378,11 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b)
         return  # TRIAD still waits for its magnetometer sample
     s[S_DT] = dt
     _predict(cfg, prm, x, P, wm, wc, work, w_b, dt)
-    if cfg[C_KIND] == KIND_PAPER:
-        var = prm[R_ACC_VAR]
+    if cfg[C_PAPER_KIND] == KIND_PAPER:
+        var = prm[R_PAPER_ACC_VAR]
     else:
         # Per-sample noise sigma_c / sqrt(dt) (Kalibr), divided by |f| = g for the unit vector.
-        sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_GRAV]
+        sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_G_NORM]
         var = sw * sw + prm[R_ACC_UNIT2]
     sensor = np.int64(INN_ACCEL)
     # _UP_N copied: numba types a global array read-only, and a read-only r_n would compile
@@ -409,12 +411,12 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, mag_b):
         s[S_MAGNORM] = norm
         flags[F_MAGREF] = 1
     if flags[F_READY] == 0:
-        site = prm[R_SITE_MAG : R_SITE_MAG + 3]
+        site = prm[R_SITE_FIELD : R_SITE_FIELD + 3]
         q0 = triad(f_b, mag_b, True, site, _norm3(site) > 0.0)
         _start(cfg, prm, flags, x, P, q0)
         return  # this sample made the initial attitude; fusing it again would reuse it
-    if cfg[C_KIND] == KIND_PAPER:
-        var = prm[R_MAG_VAR]
+    if cfg[C_PAPER_KIND] == KIND_PAPER:
+        var = prm[R_PAPER_MAG_VAR]
     else:
         r = prm[R_MAG_NOISE] / s[S_MAGNORM]
         var = r * r + prm[R_MAG_UNIT2]
@@ -473,7 +475,7 @@ def record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov):
     else:
         out_q[k] = 0.0
         out_q[k, 0] = 1.0
-    kind = cfg[C_KIND]
+    kind = cfg[C_PAPER_KIND]
     if kind == KIND_PAPER:
         out_cov[k] = P
         return
@@ -557,7 +559,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     """A fresh KernelState for the filter c at the site; has: the streams that will be fed;
     caps: innovation log rows by sensor (core.layout's INN_ACCEL, INN_MAG, INN_AIR; at
     most one per event of its stream)."""
-    cfg = np.zeros(N_CFG, dtype=np.int64)
+    cfg = np.zeros(N_CFG_ADD, dtype=np.int64)
     # the core's fields: the covariance, the form of H, no error-state blocks to inject into
     cfg[C_N] = c.n
     cfg[core.C_ADD] = core.ADD_COV
@@ -567,18 +569,18 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     for sensor, cap in caps.items():
         rows[sensor] = cap
     total = log_layout(cfg, rows)
-    cfg[C_KIND] = c.kind
+    cfg[C_PAPER_KIND] = c.kind
     cfg[C_HAS_MAG] = int("mag" in has)
     cfg[C_QSTART] = int(c.q_start is not None)
     cfg[C_USE_AIR] = int(c.use_air)
     cfg[C_P0_ISO] = int(c.p0_iso)
-    prm = np.zeros(N_PRM)
+    prm = np.zeros(N_PRM_ADD)
     prm[R_P0_VAR] = c.p0_var
     prm[R_ATT0_VAR] = c.att0_var
     prm[R_BG0_VAR] = c.bg0_var
     prm[R_Q_VAR] = c.process_var
-    prm[R_ACC_VAR] = c.acc_var
-    prm[R_MAG_VAR] = c.mag_var
+    prm[R_PAPER_ACC_VAR] = c.acc_var
+    prm[R_PAPER_MAG_VAR] = c.mag_var
     prm[R_AIR_VAR] = c.air_var
     prm[R_GNSS_AGE] = c.gnss_max_age
     prm[core.R_SG2] = c.gyro_noise**2
@@ -587,7 +589,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     prm[R_ACC_UNIT2] = c.accel_sigma_unit**2
     prm[R_MAG_NOISE] = c.mag_noise
     prm[R_MAG_UNIT2] = c.mag_sigma_unit**2
-    prm[R_GRAV] = site.gravity
+    prm[R_G_NORM] = site.gravity
     if c.q_start is not None:
         q = np.asarray(c.q_start, dtype=np.float64)
         if q.shape != (4,):
@@ -601,10 +603,10 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     s = np.zeros(N_S)
     s[S_TGNSS] = -np.inf
     s[S_TSTATE] = -np.inf  # no sample yet
-    flags = np.zeros(N_FLAGS, dtype=np.int64)
+    flags = np.zeros(N_FLAGS_ADD, dtype=np.int64)
     flags[core.L_FIRST : core.L_FIRST + core.N_SENSORS] = -1
     if site.mag_n is not None:
-        prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
+        prm[R_SITE_FIELD : R_SITE_FIELD + 3] = site.mag_n
         norm = float(np.linalg.norm(site.mag_n))
         s[S_MAGNORM] = norm
         s[S_MAGREF : S_MAGREF + 3] = site.mag_n / norm
