@@ -37,14 +37,14 @@ LAYOUTS = {
     "mekf-air": ("mekf-air", EskfParams()),
     "ins": ("ins-wind", EskfParams(init_mag_bias=1e-6)),
 }
-ZERO_GATES = {k: 0.0 for k in ("R_GATE2_ACC", "R_GATE2_MAG", "R_GATE2_GNSS", "R_GATE2_AIR", "R_GATE2_DRAG")}
+ZERO_GATES = {k: 0.0 for k in ("gate_accel2", "gate_mag2", "gate_gnss2", "gate_air2", "gate_drag2")}
 
 
 def _state(kind: str, params: EskfParams, rng: np.random.Generator):  # type: ignore[no-untyped-def]
     st = make_state(kind, False, params, SITE, None, frozenset({"imu", "mag", "gnss", "air"}),
                     np.full(K.N_SENSORS, 4, dtype=np.int64))  # fmt: skip
     for name in ZERO_GATES:
-        st.prm[getattr(K, name)] = 0.0
+        st.prm[name] = 0.0
     st.flags[K.S_INIT] = st.flags[K.S_MAGN] = st.flags[K.S_VGNSS] = 1
     x = st.x
     x[K.X_Q : K.X_Q + 4] = quat_normalize(rng.normal(size=4))

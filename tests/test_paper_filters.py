@@ -22,7 +22,7 @@ from windahrs.core.dense import (
 )
 from windahrs.core.kalman import _fuse, read_logs
 from windahrs.core.kernel import make_state as kernel_state
-from windahrs.core.layout import C_N, INN_ACCEL, INN_MAG, N_SENSORS, R_SB2, R_SG2, W_HQ, W_NU, W_R
+from windahrs.core.layout import C_N, INN_ACCEL, INN_MAG, N_SENSORS, W_HQ, W_NU, W_R
 from windahrs.core.predict import _normalise_add, _predict_add
 from windahrs.estimate import Estimate
 from windahrs.filters.additive import make_state
@@ -123,7 +123,7 @@ def test_additive_prediction_is_spec_2_3(dt: float, bias: bool) -> None:
     n = 7 if bias else 4
     for _ in range(5):
         st = _ekf7_state() if bias else _ekf_state()
-        st.prm[R_SG2] = st.prm[R_SB2] = 0.0
+        st.prm["gyro_noise2"] = st.prm["gyro_bias_noise2"] = 0.0
         q = _unit(rng, 4) + np.array([2.0, 0.0, 0.0, 0.0])  # within ~60 deg of identity: no flip
         q /= np.linalg.norm(q)
         b = rng.normal(size=3) * 0.05 if bias else np.zeros(3)
@@ -191,7 +191,7 @@ def test_process_noise_equals_van_loan_without_rotation(bias: bool) -> None:
     Phi = M[7:, 7:].T
     Q_vl = Phi @ M[:7, 7:]
     st = _ekf7_state() if bias else _ekf_state()
-    st.prm[R_SG2], st.prm[R_SB2] = sg**2, sb**2
+    st.prm["gyro_noise2"], st.prm["gyro_bias_noise2"] = sg**2, sb**2
     st.x[:4] = q
     st.P[:] = 0.0
     b = np.full(3, 1e-3) if bias else np.zeros(3)

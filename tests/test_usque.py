@@ -28,13 +28,11 @@ from windahrs.core.layout import (
     INN_ACCEL,
     INN_MAG,
     L_CNT,
-    N_PRM,
     N_SENSORS,
     N_WORK,
     N_X,
     NMAX,
-    R_SB2,
-    R_SG2,
+    PRM,
     X_BG,
     X_Q,
 )
@@ -348,9 +346,9 @@ def test_point_predictions_equal_observation_models() -> None:
 
 def test_propagation_equals_oracle() -> None:
     rng = np.random.default_rng(SEED + 9)
-    prm = np.zeros(N_PRM)
+    prm = np.zeros(1, PRM)[0]
     sg, sb = 2e-3, 1e-4
-    prm[R_SG2], prm[R_SB2] = sg**2, sb**2
+    prm["gyro_noise2"], prm["gyro_bias_noise2"] = sg**2, sb**2
     for dt in (0.005, 0.02, 0.1):
         q, bg, P = random_state(rng)
         w_b = rng.normal(size=3)

@@ -20,9 +20,6 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_AIR,
-    R_GATE2_AIR,
-    R_TAS_VAR,
-    R_VANE_VAR,
     S_WPEND,
     W_NU,
     W_R,
@@ -69,9 +66,9 @@ def fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, 
     J[0, 0], J[0, 1], J[0, 2] = ca * cb, -tas * sa * cb, -tas * ca * sb
     J[1, 0], J[1, 1], J[1, 2] = sb, 0.0, tas * cb
     J[2, 0], J[2, 1], J[2, 2] = sa * cb, tas * ca * cb, -tas * sa * sb
-    d0, d1 = prm[R_TAS_VAR], prm[R_VANE_VAR]
+    d0, d1 = prm["tas_var"], prm["vane_var"]
     for k in range(3):
         for l in range(3):
             r = J[k, 0] * d0 * J[l, 0] + J[k, 1] * d1 * J[l, 1] + J[k, 2] * d1 * J[l, 2]
             R[k, l] = r + extra if k == l else r
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AIR), t, np.int64(3), ns, prm[R_GATE2_AIR])
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AIR), t, np.int64(3), ns, prm["gate_air2"])

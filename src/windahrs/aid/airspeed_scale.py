@@ -47,11 +47,6 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_ASPD,
-    R_ASC_BETA_VAR,
-    R_ASC_KN2,
-    R_ASC_P0,
-    R_ASC_TAS_VAR,
-    R_ASC_WN2,
     S_ASC,
     W_NU,
     X_ASC,
@@ -114,8 +109,8 @@ def _init(prm, x, flags, c, vn, ve, tas, t):
     an = c[0] * ax + c[1] * ay + c[2] * az
     ae = c[3] * ax + c[4] * ay + c[5] * az
     x[X_ASC], x[X_ASC + 1], x[X_ASC + 2] = vn - an, ve - ae, 1.0
-    pk = prm[R_ASC_P0]
-    own = prm[R_ASC_TAS_VAR] + tas * tas * prm[R_ASC_BETA_VAR]
+    pk = prm["asc_init_var"]
+    own = prm["asc_tas_var"] + tas * tas * prm["asc_beta_var"]
     P = x[X_ASCP : X_ASCP + 9]
     P[0], P[1], P[3], P[4] = an * an * pk + own, an * ae * pk, an * ae * pk, ae * ae * pk + own
     P[2], P[6], P[5], P[7] = an * pk, an * pk, ae * pk, ae * pk
@@ -138,16 +133,16 @@ def airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, beta, syn, u
     P = x[X_ASCP : X_ASCP + 9]
     dt = t - x[X_TASC]
     if dt > 0:
-        P[0] += prm[R_ASC_WN2] * dt
-        P[4] += prm[R_ASC_WN2] * dt
-        P[8] += prm[R_ASC_KN2] * dt
+        P[0] += prm["asc_wn2"] * dt
+        P[4] += prm["asc_wn2"] * dt
+        P[8] += prm["asc_kn2"] * dt
         x[X_TASC] = t
     # airspeed: tas = k |v - W|
     un, ue = vn - x[X_ASC], ve - x[X_ASC + 1]
     n = max(math.sqrt(un * un + ue * ue + vd * vd), 1e-3)
     k = x[X_ASC + 2]
     nu_tas = tas - k * n
-    ok, nis = _update(x, -k * un / n, -k * ue / n, n, nu_tas, prm[R_ASC_TAS_VAR], TAS_GATE)
+    ok, nis = _update(x, -k * un / n, -k * ue / n, n, nu_tas, prm["asc_tas_var"], TAS_GATE)
     # sideslip: beta = V_y / V_x of C_bn (v - W)
     if syn or math.isfinite(beta):
         un, ue = vn - x[X_ASC], ve - x[X_ASC + 1]
@@ -157,7 +152,7 @@ def airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, beta, syn, u
             b = beta if math.isfinite(beta) else 0.0
             h0 = -(c[1] / ux - uy * c[0] / (ux * ux))
             h1 = -(c[4] / ux - uy * c[3] / (ux * ux))
-            _update(x, h0, h1, 0.0, b - uy / ux, prm[R_ASC_BETA_VAR], BETA_GATE)
+            _update(x, h0, h1, 0.0, b - uy / ux, prm["asc_beta_var"], BETA_GATE)
     k = max(x[X_ASC + 2], 0.1)  # (a pitot reading a tenth of the airspeed is no pitot)
     nu = work[W_NU]
     nu[0], nu[1], nu[2] = 1.0 / k, math.sqrt(max(P[8], 0.0)) / (k * k), nu_tas

@@ -30,8 +30,6 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_AOA,
-    R_GATE2_AIR,
-    R_VANE_VAR,
     W_NU,
     W_R,
 )
@@ -50,5 +48,5 @@ def fuse_aoa(cfg, prm, x, flags, P, work, sup, inn, acc, t, aoa, tas, use_v, ext
     y0, _, y2, ns = _air_rows(cfg, x, work, sup[0], use_v, -y2 / r2, 0.0, y0 / r2, np.int64(0))
     d = aoa - math.atan2(y2, y0)
     nu[0] = (d + math.pi) % (2.0 * math.pi) - math.pi
-    R[0, 0] = prm[R_VANE_VAR] + extra / max(tas, 1.0) ** 2
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AOA), t, np.int64(1), ns, prm[R_GATE2_AIR])
+    R[0, 0] = prm["vane_var"] + extra / max(tas, 1.0) ** 2
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AOA), t, np.int64(1), ns, prm["gate_air2"])

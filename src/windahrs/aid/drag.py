@@ -31,11 +31,6 @@ from windahrs.core.layout import (
     _JIT_CORE,
     C_IBA,
     INN_DRAG,
-    R_DRAG_KX,
-    R_DRAG_KY,
-    R_DRAG_MU,
-    R_DRAG_VAR,
-    R_GATE2_DRAG,
     W_H,
     W_NU,
     W_R,
@@ -50,7 +45,7 @@ PARAMS = ("drag", "drag_mcoef", "drag_bcoef_x", "drag_bcoef_y", "drag_sigma", "g
 def fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """Fuse the specific force of IMU sample ``row`` = [w_b, f_b] along body x and y at t s."""
     u0, u1, _, ns = _air_rows(cfg, x, work, sup[0], True, 0.0, 0.0, 0.0, np.int64(0))
-    mu, kx, ky = prm[R_DRAG_MU], prm[R_DRAG_KX], prm[R_DRAG_KY]
+    mu, kx, ky = prm["drag_mcoef"], prm["drag_kx"], prm["drag_ky"]
     d0 = -mu - 2.0 * kx * abs(u0)  # dh_k / du_k
     d1 = -mu - 2.0 * ky * abs(u1)
     _air_rows(cfg, x, work, sup[0], True, d0, 0.0, 0.0, np.int64(0))
@@ -66,6 +61,6 @@ def fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         ns += 2
     nu, R = work[W_NU], work[W_R : W_R + 3]
     nu[0], nu[1] = row[3] - h0, row[4] - h1
-    var = prm[R_DRAG_VAR]
+    var = prm["drag_var"]
     R[0, 0], R[0, 1], R[1, 0], R[1, 1] = var, 0.0, 0.0, var
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_DRAG), t, np.int64(2), ns, prm[R_GATE2_DRAG])
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_DRAG), t, np.int64(2), ns, prm["gate_drag2"])

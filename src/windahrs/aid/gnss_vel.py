@@ -52,15 +52,6 @@ from windahrs.core.layout import (
     C_KIND,
     INN_GNSS,
     KIND_INS,
-    R_GATE2_GNSS,
-    R_GNSS_TAU,
-    R_GNSS_VAR,
-    R_GRAV,
-    R_P0_BA,
-    R_P0_BM,
-    R_P0_W,
-    R_P0_WV,
-    R_RESET_TOUT,
     S_AGNSS,
     S_AINS,
     S_FBAR,
@@ -112,7 +103,7 @@ def remember_gnss(prm, x, flags, t, row):
     mean over LEVEL_TAU, the INS reset's levelling). The first sample after an outage longer
     than reset_timeout restarts the reset's clock: the sensor was absent, not kept out by its
     gate (PX4 EKF2 likewise times its GNSS fusion out only while it has samples to fuse)."""
-    if flags[S_VGNSS] == 1 and t - x[X_TGNSS] > prm[R_RESET_TOUT] and flags[S_INIT] == 1:
+    if flags[S_VGNSS] == 1 and t - x[X_TGNSS] > prm["reset_timeout"] and flags[S_INIT] == 1:
         accepted_at(x, np.int64(INN_GNSS), t)
     if flags[S_VGNSS] == 1 and t > x[X_TGNSS]:
         dt = t - x[X_TGNSS]
@@ -136,19 +127,19 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     if cfg[C_KIND] == KIND_INS:
         iv = cfg[C_IV]
         H, R = work[W_H : W_H + 3], work[W_R : W_R + 3]
-        tau = prm[R_GNSS_TAU] if flags[S_AGNSS] == 1 else 0.0
+        tau = prm["gnss_timing_sigma"] if flags[S_AGNSS] == 1 else 0.0
         for k in range(3):
             H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0
             for a in range(3):
                 H[k, iv + a] = 1.0 if k == a else 0.0
                 R[k, a] = 0.0
-            R[k, k] = prm[R_GNSS_VAR] + (tau * x[X_AGNSS + k]) ** 2  # noise, and timing: late by tau, off by a tau
+            R[k, k] = prm["gnss_var"] + (tau * x[X_AGNSS + k]) ** 2  # noise, and timing: late by tau, off by a tau
             sup[0, k] = iv + k
             work[W_NU, k] = row[k] - x[X_V + k]
         sensor, m, ns = np.int64(INN_GNSS), np.int64(3), np.int64(3)
         if timed_out(prm, x, sensor, t):
             reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row)
-        elif _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_GNSS]):
+        elif _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_gnss2"]):
             accepted_at(x, sensor, t)
 
 
@@ -172,7 +163,7 @@ def remember_specific_force(x, flags, fx, fy, fz, dt):
 def _level(prm, x):
     """Level the attitude so that the mean specific force matches the mean GNSS
     acceleration, ``f_b = C_bn (a_n - g_n)`` (both over LEVEL_TAU)."""
-    g = prm[R_GRAV]
+    g = prm["gravity"]
     level_to(x, -x[X_FBAR], -x[X_FBAR + 1], -x[X_FBAR + 2], -x[X_AINS], -x[X_AINS + 1], g - x[X_AINS + 2])
 
 
@@ -183,7 +174,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     tilt beyond 45 deg levelled), the biases restarted, the wind restarted from the next air
     sample, the heading turned to the next magnetometer sample; logged."""
     iv = cfg[C_IV]
-    reopen(cfg, P, iv, prm[R_GNSS_VAR], prm[R_GNSS_VAR])
+    reopen(cfg, P, iv, prm["gnss_var"], prm["gnss_var"])
     dv2 = 0.0
     for a in range(3):
         dv2 += (row[a] - x[X_V + a]) ** 2
@@ -193,11 +184,11 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     set_attitude_cov(cfg, prm, x, P, work)
     reset_gyro_bias(cfg, prm, x, P)
     if cfg[C_IBA] >= 0:
-        restart(cfg, x, P, X_BA, cfg[C_IBA], prm[R_P0_BA])
+        restart(cfg, x, P, X_BA, cfg[C_IBA], prm["init_accel_bias_var"])
     if cfg[C_IBM] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
-        restart(cfg, x, P, X_BM, cfg[C_IBM], prm[R_P0_BM])
+        restart(cfg, x, P, X_BM, cfg[C_IBM], prm["init_mag_bias_var"])
     flags[S_HEADLESS] = 1  # the heading from the next field sample (aid.mag.fuse_mag)
     if cfg[C_IW] >= 0:
-        reopen(cfg, P, cfg[C_IW], prm[R_P0_W], prm[R_P0_WV])
+        reopen(cfg, P, cfg[C_IW], prm["init_wind_var"], prm["init_wind_vertical_var"])
         flags[S_WPEND] = 1  # the wind from the next air sample, as at initialisation
     log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_GNSS), t, math.sqrt(dv2))

@@ -53,13 +53,6 @@ from windahrs.core.layout import (
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
-    R_ACC_FUSE_DT,
-    R_ACC_LP,
-    R_ACC_VAR,
-    R_GATE2_ACC,
-    R_GRAV,
-    R_LAGB,
-    R_NORM_GATE,
     S_AGNSS,
     S_FBAR,
     S_VAIR,
@@ -169,14 +162,14 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
     n = x[X_NRM] + 1.0
     add_to_mean(x, np.int64(X_RM), n, fx, fy, fz)
     x[X_NRM] = n
-    if t - x[X_TINIT] < prm[R_ACC_LP]:
+    if t - x[X_TINIT] < prm["accel_lowpass"]:
         return False
     x[X_NRM] = 0.0  # checked once
     rx, ry, rz = x[X_RM], x[X_RM + 1], x[X_RM + 2]
     rn = math.sqrt(rx * rx + ry * ry + rz * rz)
     if rn <= 0.0 or knows_gravity(-(c[6] * rx + c[7] * ry + c[8] * rz) / rn, rn, g):
         return False
-    x[X_TOK + INN_ACCEL] = t + prm[R_ACC_LP]  # logged as out for -accel_lowpass s: the start check
+    x[X_TOK + INN_ACCEL] = t + prm["accel_lowpass"]  # logged as out for -accel_lowpass s: the start check
     _level_reset(cfg, prm, x, flags, P, work, inn, acc, t, rx, ry, rz)
     # the mean goes on from the plain one; its bias sensitivity J stays the exponential
     # mean's, of the same samples (a sensitivity of zero would tell the filter that a gyro
@@ -195,7 +188,7 @@ def blend_mean(prm, x, a, fx, fy, fz):
     x[X_FBAR] = x[X_FBAR] + a * (fx - x[X_FBAR])
     x[X_FBAR + 1] = x[X_FBAR + 1] + a * (fy - x[X_FBAR + 1])
     x[X_FBAR + 2] = x[X_FBAR + 2] + a * (fz - x[X_FBAR + 2])
-    if prm[R_LAGB] > 0:
+    if prm["lowpass_bias"] > 0:
         lag_age(x, np.int64(X_JLAG), a)
     return x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2]
 
@@ -204,7 +197,7 @@ def blend_mean(prm, x, a, fx, fy, fz):
 def accel_variance(cfg, prm, x):
     """The gravity measurement's variance per axis: accel_sigma^2, plus the accelerometer's
     noise measured on line (core.predict.track_accel_noise) with accel_noise_online."""
-    return prm[R_ACC_VAR] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm[R_ACC_VAR]
+    return prm["accel_var"] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm["accel_var"]
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -218,7 +211,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         track_accel_noise(cfg, prm, x, dt)
     # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
-    g = prm[R_GRAV]
+    g = prm["gravity"]
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     k0, k1, k2 = 0.0, 0.0, 0.0  # compensation acceleration, body
     comp = cfg[C_COMP]
@@ -238,7 +231,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     # turn's force, turning in the gyro-compensated frame, averages out of it (knows_gravity)
     f_now = math.sqrt((fx - k0) ** 2 + (fy - k1) ** 2 + (fz - k2) ** 2)
     if flags[S_FBAR] == 1:  # the mean of the compensated specific force, no compensation after
-        a = steady_gain(x, np.int64(X_FGAIN), dt, prm[R_ACC_LP])
+        a = steady_gain(x, np.int64(X_FGAIN), dt, prm["accel_lowpass"])
         if has_k:
             fx, fy, fz = fx - k0, fy - k1, fz - k2
         if x[X_NRM] > 0 and start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
@@ -246,7 +239,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         fx, fy, fz = blend_mean(prm, x, a, fx, fy, fz)
         has_k = False
     sensor = np.int64(INN_ACCEL)
-    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm[R_NORM_GATE] * g:
+    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm["accel_norm_gate"] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
         _log(cfg, flags, inn, acc, nu, sensor, t, np.int64(3), np.nan, np.bool_(False))
         return
@@ -265,9 +258,9 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         return
     var = accel_variance(cfg, prm, x)
     kf = 1.0
-    if flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE and prm[R_ACC_FUSE_DT] > 0:  # at accel_fuse_rate
+    if flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE and prm["accel_fuse_dt"] > 0:  # at accel_fuse_rate
         tilt_var = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, c[6], c[7], c[8])  # (less the part about down)
-        kf = samples_to_fuse(x, np.int64(X_NFUSE), np.int64(X_TGFUSE), t, prm[R_ACC_FUSE_DT], 0.5 * dt,
+        kf = samples_to_fuse(x, np.int64(X_NFUSE), np.int64(X_TGFUSE), t, prm["accel_fuse_dt"], 0.5 * dt,
                              tilt_var, var / (g * g))
         if kf == 0.0:  # (this sample is in the next fusion)
             return
@@ -278,7 +271,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
     ib = cfg[C_IBG]
-    if flags[S_FBAR] == 1 and prm[R_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+    if flags[S_FBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
         # the mean's samples were rotated into this body frame by the bias-corrected gyro:
         # a bias error db turned each by its integral over the sample's age, so the mean
         # reads y + [y]x (dtheta + J db), J = d mean / d b_g kept by the kernel (tau I at
@@ -292,5 +285,5 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     m, ns = np.int64(3), np.int64(nsup)
     # (gated as one sample: with R / k the innovation's variance is about 1 / k of a sample's,
     # while the mean's innovation is a sample's, so the gate opens by k)
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_ACC] * kf)
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_accel2"] * kf)
     per_sample_nis(cfg, flags, inn, sensor, kf)

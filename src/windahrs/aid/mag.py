@@ -47,15 +47,6 @@ from windahrs.core.layout import (
     KIND_INS,
     MAG_3D,
     MAG_OFF,
-    R_GATE2_MAG,
-    R_LAGB,
-    R_MAG_DGATE,
-    R_MAG_FUSE_DT,
-    R_MAG_LP,
-    R_MAG_NGATE,
-    R_MAG_SIGMA,
-    R_MAG_VAR,
-    R_SITE_MAG,
     S_HEADLESS,
     S_MAGN,
     S_MBAR,
@@ -115,7 +106,7 @@ def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
     """The reference field m_n: the site's field, or the sample's with its horizontal part north."""
     if cfg[C_SITE_MAG] == 1:
         for a in range(3):
-            x[X_MAGN + a] = prm[R_SITE_MAG + a]
+            x[X_MAGN + a] = prm["site_mag"][a]
     else:
         c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
         m0 = c[0] * mx + c[1] * my + c[2] * mz
@@ -134,10 +125,10 @@ def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
     if cfg[C_IBM] >= 0:
         mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
     r_norm = math.sqrt(rx * rx + ry * ry + rz * rz)
-    ng = prm[R_MAG_NGATE]
+    ng = prm["mag_norm_gate"]
     if ng > 0 and abs(math.sqrt(mx * mx + my * my + mz * mz) - r_norm) > ng * r_norm:
         return True
-    dg = prm[R_MAG_DGATE]
+    dg = prm["mag_dip_gate"]
     if dg > 0:
         c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
         n0 = c[0] * mx + c[1] * my + c[2] * mz
@@ -184,23 +175,23 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     nu = work[W_NU]
     dtm = 0.0  # the mean's last sample interval, s
-    if prm[R_MAG_LP] > 0:  # fuse the low-passed field
+    if prm["mag_lowpass"] > 0:  # fuse the low-passed field
         if flags[S_MBAR] == 0:
             x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2] = mx, my, mz
             lag_age(x, np.int64(X_JMAG), 1.0)
             flags[S_MBAR] = 1
         else:
             dtm = t - x[X_TMBAR]
-            a = steady_gain(x, np.int64(X_MGAIN), dtm, prm[R_MAG_LP])
+            a = steady_gain(x, np.int64(X_MGAIN), dtm, prm["mag_lowpass"])
             x[X_MBAR] = x[X_MBAR] + a * (mx - x[X_MBAR])
             x[X_MBAR + 1] = x[X_MBAR + 1] + a * (my - x[X_MBAR + 1])
             x[X_MBAR + 2] = x[X_MBAR + 2] + a * (mz - x[X_MBAR + 2])
-            if prm[R_LAGB] > 0:
+            if prm["lowpass_bias"] > 0:
                 lag_age(x, np.int64(X_JMAG), a)
         x[X_TMBAR] = t
         mx, my, mz = x[X_MBAR], x[X_MBAR + 1], x[X_MBAR + 2]
     sensor = np.int64(INN_MAG)
-    if (prm[R_MAG_NGATE] > 0 or prm[R_MAG_DGATE] > 0) and _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
+    if (prm["mag_norm_gate"] > 0 or prm["mag_dip_gate"] > 0) and _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
         md = np.int64(3) if mode == MAG_3D else np.int64(1)
         _log(cfg, flags, inn, acc, nu, sensor, t, md, np.nan, np.bool_(False))
@@ -210,7 +201,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     kf = 1.0
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    if prm[R_MAG_LP] > 0 and cfg[C_ADD] == ADD_NONE and prm[R_MAG_FUSE_DT] > 0:  # the mean at mag_fuse_rate
+    if prm["mag_lowpass"] > 0 and cfg[C_ADD] == ADD_NONE and prm["mag_fuse_dt"] > 0:  # the mean at mag_fuse_rate
         kf = mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry)
         if kf == 0.0:  # (this sample is in the next fusion)
             return
@@ -218,7 +209,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         y0 = c[0] * rx + c[3] * ry + c[6] * rz
         y1 = c[1] * rx + c[4] * ry + c[7] * rz
         y2 = c[2] * rx + c[5] * ry + c[8] * rz
-        _vector_rows(work, sup[0], y0, y1, y2, prm[R_MAG_VAR] / kf)
+        _vector_rows(work, sup[0], y0, y1, y2, prm["mag_var"] / kf)
         nsup = _mean_bias_rows(cfg, prm, x, flags, work, sup[0], np.int64(3), np.int64(3))
         h0, h1, h2 = y0, y1, y2
         ibm = cfg[C_IBM]
@@ -227,10 +218,10 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             nsup = _bias_rows(work, sup[0], ibm, nsup)
         nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
         m, ns = np.int64(3), np.int64(nsup)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG] * kf)
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_mag2"] * kf)
         per_sample_nis(cfg, flags, inn, sensor, kf)
         return
-    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
+    sigma = prm["mag_sigma"] / max(math.hypot(rx, ry), 1e-9)
     if cfg[C_HVERT] == 1:
         # the field's heading in the nav frame against the reference's, corrected about
         # the nav vertical only: H_att = third row of C_nb
@@ -241,7 +232,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
         work[W_R, 0] = sigma**2 / kf
         m, ns = np.int64(1), np.int64(3)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG] * kf)
+        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_mag2"] * kf)
         per_sample_nis(cfg, flags, inn, sensor, kf)
         return
     # heading only (ZYX yaw): tilt-compensate with the current roll/pitch estimate
@@ -252,7 +243,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     sup[0, 0], sup[0, 1], sup[0, 2] = 0, 1, 2
     work[W_R, 0] = sigma**2 / kf
     m, ns = np.int64(1), np.int64(3)
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm[R_GATE2_MAG] * kf)
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_mag2"] * kf)
     per_sample_nis(cfg, flags, inn, sensor, kf)
 
 
@@ -268,11 +259,11 @@ def mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry):
         mn2 = mx * mx + my * my + mz * mz
         mn = math.sqrt(mn2) if mn2 > 0 else 1.0
         across = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, mx / mn, my / mn, mz / mn)
-        prior, noise = across * mn2, prm[R_MAG_VAR]
+        prior, noise = across * mn2, prm["mag_var"]
     else:
         prior = att_var_along(P, c[6], c[7], c[8])
-        noise = (prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)) ** 2
-    return samples_to_fuse(x, np.int64(X_NMFUSE), np.int64(X_TMFUSE), t, prm[R_MAG_FUSE_DT], 0.5 * dtm, prior, noise)
+        noise = (prm["mag_sigma"] / max(math.hypot(rx, ry), 1e-9)) ** 2
+    return samples_to_fuse(x, np.int64(X_NMFUSE), np.int64(X_TMFUSE), t, prm["mag_fuse_dt"], 0.5 * dtm, prior, noise)
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -283,7 +274,7 @@ def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
     keeps J (``core.kernel._rotate_lowpass``): on the heading-only model the columns took the
     field's changes from place to place into the vertical gyro bias (docs/RESULTS.md 18)."""
     ib = cfg[C_IBG]
-    if flags[S_MBAR] == 1 and prm[R_LAGB] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+    if flags[S_MBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
         return lag_bias_rows(work, sup, x, np.int64(X_JMAG), ib, m, nsup)
     return nsup
 

@@ -36,14 +36,6 @@ from windahrs.core.layout import (
     C_IBG,
     C_REST,
     INN_REST,
-    R_GATE2_ACC,
-    R_REST_CLIP,
-    R_REST_F2,
-    R_REST_MIN_T,
-    R_REST_TAU,
-    R_REST_VAR,
-    R_REST_W2,
-    R_SG2,
     REST_START,
     W_H,
     W_NU,
@@ -81,7 +73,7 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
             x[X_RF + i] = row[3 + i]
         x[X_RN] = 1.0
         return
-    tau = prm[R_REST_TAU]
+    tau = prm["rest_tau"]
     a = _lowpass_gain(dt, tau)
     dw2, df2, clip = 0.0, 0.0, 0.0
     for i in range(3):
@@ -91,19 +83,19 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         df2 += (row[3 + i] - x[X_RF + i]) ** 2
         clip = max(clip, abs(x[X_RW + i]))
     x[X_RN] += 1.0
-    if not (dw2 < prm[R_REST_W2] and df2 < prm[R_REST_F2] and clip <= prm[R_REST_CLIP]):
+    if not (dw2 < prm["rest_w2"] and df2 < prm["rest_f2"] and clip <= prm["rest_clip"]):
         x[X_TREST] = np.nan  # moving
         if cfg[C_REST] == REST_START and x[X_TRFUSE] > -np.inf:
             x[X_RN] = -1.0  # the start's rest is over: no more rest updates
         return
     if math.isnan(x[X_TREST]):
         x[X_TREST] = t
-    if t - x[X_TREST] < prm[R_REST_MIN_T] or t - x[X_TRFUSE] < tau:
+    if t - x[X_TREST] < prm["rest_min_t"] or t - x[X_TRFUSE] < tau:
         return
     x[X_TRFUSE] = t
     H, R, nu = work[W_H : W_H + 3], work[W_R : W_R + 3], work[W_NU]
     ib = cfg[C_IBG]
-    var = prm[R_REST_VAR] + prm[R_SG2] / (2.0 * tau)
+    var = prm["rest_var"] + prm["gyro_noise2"] / (2.0 * tau)
     for k in range(3):
         H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0  # (the additive form reads the attitude's columns)
         nu[k] = x[X_RW + k] - x[X_BG + k]
@@ -111,4 +103,4 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
             R[k, l] = var if k == l else 0.0
     nsup = _bias_rows(work, sup[0], ib, np.int64(0))
     _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_REST), t, np.int64(3), np.int64(nsup),
-          prm[R_GATE2_ACC])
+          prm["gate_accel2"])

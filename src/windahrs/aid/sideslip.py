@@ -21,8 +21,6 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_SIDESLIP,
-    R_BETA_VAR,
-    R_GATE2_AIR,
     W_NU,
     W_R,
 )
@@ -40,5 +38,5 @@ def fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, ext
     u = y0 if abs(y0) > 1e-3 else math.copysign(1e-3, y0)
     _, y1, _, ns = _air_rows(cfg, x, work, sup[0], use_v, -y1 / u**2, 1.0 / u, 0.0, np.int64(0))
     nu[0] = -(y1 / u)
-    R[0, 0] = prm[R_BETA_VAR] + extra / max(tas, 1.0) ** 2
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_SIDESLIP), t, np.int64(1), ns, prm[R_GATE2_AIR])
+    R[0, 0] = prm["sideslip_var"] + extra / max(tas, 1.0) ** 2
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_SIDESLIP), t, np.int64(1), ns, prm["gate_air2"])

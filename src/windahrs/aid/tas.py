@@ -20,8 +20,6 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_TAS,
-    R_GATE2_AIR,
-    R_TAS_VAR,
     W_H,
     W_NU,
     W_R,
@@ -41,5 +39,5 @@ def fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra):
     y0, y1, y2, ns = _air_rows(cfg, x, work, sup[0], use_v, y0 / den, y1 / den, y2 / den, np.int64(0))
     work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, 0.0, 0.0
     nu[0] = tas - a
-    R[0, 0] = prm[R_TAS_VAR] + extra
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_TAS), t, np.int64(1), ns, prm[R_GATE2_AIR])
+    R[0, 0] = prm["tas_var"] + extra
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_TAS), t, np.int64(1), ns, prm["gate_air2"])

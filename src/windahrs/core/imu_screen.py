@@ -51,9 +51,6 @@ from windahrs.core.layout import (
     C_OFF,
     INN_IMU,
     L_CNT,
-    R_ACC_RANGE,
-    R_GYRO_RANGE,
-    R_SPIKE_GATE,
     S_CLIP,
     S_FLAST,
     S_INIT,
@@ -163,7 +160,7 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
     ``row`` itself."""
     if flags[S_FLAST] == 0:
         return False
-    k = prm[R_SPIKE_GATE]
+    k = prm["imu_spike_gate"]
     dt = t - x[X_TIMU]
     gw2 = max(FLOOR_W * FLOOR_W, k * k * x[X_SW2])
     gf2 = max(FLOOR_F * FLOOR_F, k * k * x[X_SF2])
@@ -192,7 +189,7 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
                 x[X_DW + a] = sw * x[X_PEND + a]
                 x[X_DF + a] = sf * x[X_PEND + 3 + a]
             add_unmeasured_motion(cfg, x, P, work, x[X_DTPEND])
-    gr, ar = prm[R_GYRO_RANGE], prm[R_ACC_RANGE]
+    gr, ar = prm["gyro_range"], prm["accel_range"]
     beyond_w, beyond_f = False, False
     for a in range(3):
         beyond_w = beyond_w or abs(row[a]) > gr

@@ -111,75 +111,11 @@ from windahrs.core.layout import (
     MAG_OFF,
     N_CFG,
     N_FLAGS,
-    N_PRM,
     N_SENSORS,
     N_WORK,
     N_X,
     NMAX,
-    R_ACC_FUSE_DT,
-    R_ACC_LP,
-    R_ACC_RANGE,
-    R_ACC_VAR,
-    R_ASC_BETA_VAR,
-    R_ASC_KN2,
-    R_ASC_P0,
-    R_ASC_TAS_VAR,
-    R_ASC_WN2,
-    R_BETA_VAR,
-    R_DRAG_KX,
-    R_DRAG_KY,
-    R_DRAG_MU,
-    R_DRAG_VAR,
-    R_GATE2_ACC,
-    R_GATE2_AIR,
-    R_GATE2_DRAG,
-    R_GATE2_GNSS,
-    R_GATE2_MAG,
-    R_GNSS_TAU,
-    R_GNSS_VAR,
-    R_GRAV,
-    R_GYRO_RANGE,
-    R_HOLD_DT,
-    R_INI_BG,
-    R_INI_Q,
-    R_INI_V,
-    R_INI_W,
-    R_INI_WIN,
-    R_LAGB,
-    R_MAG_DGATE,
-    R_MAG_FUSE_DT,
-    R_MAG_LP,
-    R_MAG_NGATE,
-    R_MAG_SIGMA,
-    R_MAG_VAR,
-    R_NORM_GATE,
-    R_P0_ATT,
-    R_P0_BA,
-    R_P0_BG,
-    R_P0_BM,
-    R_P0_V,
-    R_P0_W,
-    R_P0_WV,
-    R_P0_YAW,
-    R_RESET_TOUT,
-    R_REST_CLIP,
-    R_REST_F2,
-    R_REST_MIN_T,
-    R_REST_TAU,
-    R_REST_VAR,
-    R_REST_W2,
-    R_SA2,
-    R_SB2,
-    R_SBA2,
-    R_SBM2,
-    R_SCALE2,
-    R_SG2,
-    R_SITE_MAG,
-    R_SPIKE_GATE,
-    R_TAS_VAR,
-    R_VANE_VAR,
-    R_WH2,
-    R_WV2,
+    PRM,
     REST_OFF,
     REST_ON,
     REST_START,
@@ -281,7 +217,7 @@ def _try_init(cfg, prm, x, flags, P, work):
     reference, the low-pass means. x[X_TIMU]: the time of the last IMU sample."""
     if flags[S_INIT] == 1 or flags[S_WIN] == 0:
         return
-    if cfg[C_INI] == 0 and x[X_TIMU] - x[X_TWIN0] < prm[R_INI_WIN]:
+    if cfg[C_INI] == 0 and x[X_TIMU] - x[X_TWIN0] < prm["init_window"]:
         return
     headless = cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0
     if headless and x[X_TIMU] - x[X_TWIN0] < MAG_WAIT:
@@ -293,7 +229,7 @@ def _try_init(cfg, prm, x, flags, P, work):
         _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
     elif cfg[C_SITE_MAG] == 1:
         _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
-    if prm[R_ACC_LP] > 0:
+    if prm["accel_lowpass"] > 0:
         for a in range(3):
             x[X_FBAR + a] = x[f0 + a]
         for a in range(9):
@@ -320,25 +256,25 @@ def _initial_state(cfg, prm, x, flags, P, work):
     given; the wind zero or given; the initial spreads. Returns the index in x of the
     specific force used. :func:`_try_init` starts from it, and :func:`record` writes it
     for the samples before the start (flagged not_initialised), so that no output is NaN."""
-    f0 = X_FWIN if prm[R_INI_WIN] > 0 else X_FLAST  # the window's mean, or the last sample
+    f0 = X_FWIN if prm["init_window"] > 0 else X_FLAST  # the window's mean, or the last sample
     if cfg[C_INI] == 1:
-        q = (prm[R_INI_Q], prm[R_INI_Q + 1], prm[R_INI_Q + 2], prm[R_INI_Q + 3])
+        q = (prm["init_q"][0], prm["init_q"][1], prm["init_q"][2], prm["init_q"][3])
     elif flags[S_FLAST] == 0:  # no IMU sample yet (only NaN ones): level
         q = (1.0, 0.0, 0.0, 0.0)
     else:
         q = _triad(
             x[f0], x[f0 + 1], x[f0 + 2],
             flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
-            cfg[C_SITE_MAG] == 1, prm[R_SITE_MAG], prm[R_SITE_MAG + 1], prm[R_SITE_MAG + 2],
+            cfg[C_SITE_MAG] == 1, prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2],
         )  # fmt: skip
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = q
     iv, ib, iw, iba = cfg[C_IV], cfg[C_IBG], cfg[C_IW], cfg[C_IBA]
     for a in range(3):
-        x[X_BG + a] = prm[R_INI_BG + a] if cfg[C_INI_BG] == 1 else 0.0
+        x[X_BG + a] = prm["init_bias"][a] if cfg[C_INI_BG] == 1 else 0.0
         if iv >= 0:
-            x[X_V + a] = prm[R_INI_V + a] if cfg[C_INI_V] == 1 else x[X_FV + a]
+            x[X_V + a] = prm["init_v"][a] if cfg[C_INI_V] == 1 else x[X_FV + a]
         if iw >= 0:
-            x[X_W + a] = prm[R_INI_W + a] if cfg[C_INI_W] == 1 else 0.0
+            x[X_W + a] = prm["init_wind"][a] if cfg[C_INI_W] == 1 else 0.0
         x[X_BA + a] = 0.0
         x[X_BM + a] = 0.0
     for i in range(P.shape[1]):
@@ -346,15 +282,15 @@ def _initial_state(cfg, prm, x, flags, P, work):
             P[i, j] = 0.0
     off = cfg[C_ADD]  # covariance index = error-state index + 1 after the quaternion
     for a in range(3):
-        P[ib + off + a, ib + off + a] = prm[R_P0_BG]
+        P[ib + off + a, ib + off + a] = prm["init_bias_var"]
         if iv >= 0:
-            P[iv + off + a, iv + off + a] = prm[R_P0_V]
+            P[iv + off + a, iv + off + a] = prm["init_v_var"]
         if iw >= 0:
-            P[iw + off + a, iw + off + a] = prm[R_P0_W] if a < 2 else prm[R_P0_WV]
+            P[iw + off + a, iw + off + a] = prm["init_wind_var"] if a < 2 else prm["init_wind_vertical_var"]
         if iba >= 0:
-            P[iba + off + a, iba + off + a] = prm[R_P0_BA]
+            P[iba + off + a, iba + off + a] = prm["init_accel_bias_var"]
         if cfg[C_IBM] >= 0:
-            P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm[R_P0_BM]
+            P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm["init_mag_bias_var"]
     set_attitude_cov(cfg, prm, x, P, work)
     return f0
 
@@ -390,13 +326,13 @@ def _rotate_lowpass(cfg, prm, x, flags, e, dt):
     c = _dcm9(e[0], e[1], e[2], e[3])
     if flags[S_FBAR] == 1:
         _rotate_into(c, x, np.int64(X_FBAR))
-        if prm[R_LAGB] > 0:
+        if prm["lowpass_bias"] > 0:
             _age_rotated(c, x, np.int64(X_JLAG), dt)
     if x[X_NRM] > 0:
         _rotate_into(c, x, np.int64(X_RM))
     if flags[S_MBAR] == 1:
         _rotate_into(c, x, np.int64(X_MBAR))
-        if prm[R_LAGB] > 0 and cfg[C_MAG] == MAG_3D:
+        if prm["lowpass_bias"] > 0 and cfg[C_MAG] == MAG_3D:
             _age_rotated(c, x, np.int64(X_JMAG), dt)
 
 
@@ -471,7 +407,7 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
     keep the first sample (with an init_window, the latest) for the initial heading; returns
     whether initialised."""
     if flags[S_INIT] == 0:
-        if flags[S_FMAG] == 0 or prm[R_INI_WIN] > 0:
+        if flags[S_FMAG] == 0 or prm["init_window"] > 0:
             x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2] = row[0], row[1], row[2]
         flags[S_FMAG] = 1
         _try_init(cfg, prm, x, flags, P, work)
@@ -500,7 +436,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             e = _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
         if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
             _rotate_lowpass(cfg, prm, x, flags, e, dt)
-        if dt > prm[R_HOLD_DT]:  # (tested here: a call per sample costs more than the test)
+        if dt > prm["unmeasured_motion_dt"]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
         if cfg[C_REST] != REST_OFF:  # the gyro's bias, when the vehicle is at rest
             fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
@@ -551,7 +487,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
     if kind == KIND_MEKF_AIR:  # GNSS velocity as an input
         if flags[S_VGNSS] == 0:
             return
-        extra = prm[R_GNSS_VAR]
+        extra = prm["gnss_var"]
     use_v = cfg[C_IV] >= 0
     extra_tas = extra  # the airspeed's added variance (the scale's too, when estimated)
     if cfg[C_ASC] == 1:
@@ -593,7 +529,7 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     if flags[S_INIT] == 0:  # the state it would start from now (x and P are free until then)
         _initial_state(cfg, prm, x, flags, P, work)
         if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:  # waiting for the heading's sensor
-            attitude_cov_about_vertical(cfg, x, P, work, prm[R_P0_ATT], HEADING_UNKNOWN_VAR)
+            attitude_cov_about_vertical(cfg, x, P, work, prm["init_att_var"], HEADING_UNKNOWN_VAR)
     # (the covariance first, then the vectors, loaded before they are stored: measurably
     # faster code)
     if kc < 0:
@@ -811,81 +747,81 @@ def make_state(
     def sig(given: float | None, default: float) -> float:
         return default if given is None else given
 
-    prm = np.zeros(N_PRM)
-    prm[R_SG2] = p.gyro_noise**2
-    prm[R_SB2] = p.gyro_bias_noise**2
-    prm[R_SA2] = p.accel_noise**2
-    prm[R_SBA2] = p.accel_bias_noise**2
-    prm[R_WH2] = p.wind_noise**2
-    prm[R_WV2] = p.wind_noise_vertical**2 if p.wind_vertical else 0.0
-    prm[R_ACC_VAR] = p.accel_sigma**2
-    prm[R_NORM_GATE] = p.accel_norm_gate
-    prm[R_MAG_SIGMA] = p.mag_sigma
-    prm[R_MAG_VAR] = p.mag_sigma**2
-    prm[R_GNSS_VAR] = p.gnss_sigma**2
-    prm[R_TAS_VAR] = p.tas_sigma**2
-    prm[R_VANE_VAR] = p.vane_sigma**2
-    prm[R_BETA_VAR] = p.sideslip_sigma**2
-    prm[R_GATE2_ACC] = p.gate_accel**2
-    prm[R_GATE2_MAG] = p.gate_mag**2
-    prm[R_GATE2_GNSS] = p.gate_gnss**2
-    prm[R_GATE2_AIR] = p.gate_air**2
+    prm = np.zeros(1, PRM)[0]
+    prm["gyro_noise2"] = p.gyro_noise**2
+    prm["gyro_bias_noise2"] = p.gyro_bias_noise**2
+    prm["accel_noise2"] = p.accel_noise**2
+    prm["accel_bias_noise2"] = p.accel_bias_noise**2
+    prm["wind_noise2"] = p.wind_noise**2
+    prm["wind_noise_vertical2"] = p.wind_noise_vertical**2 if p.wind_vertical else 0.0
+    prm["accel_var"] = p.accel_sigma**2
+    prm["accel_norm_gate"] = p.accel_norm_gate
+    prm["mag_sigma"] = p.mag_sigma
+    prm["mag_var"] = p.mag_sigma**2
+    prm["gnss_var"] = p.gnss_sigma**2
+    prm["tas_var"] = p.tas_sigma**2
+    prm["vane_var"] = p.vane_sigma**2
+    prm["sideslip_var"] = p.sideslip_sigma**2
+    prm["gate_accel2"] = p.gate_accel**2
+    prm["gate_mag2"] = p.gate_mag**2
+    prm["gate_gnss2"] = p.gate_gnss**2
+    prm["gate_air2"] = p.gate_air**2
     # initial spreads: the given initial state's, else the parameters'
-    prm[R_P0_ATT] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
-    prm[R_P0_YAW] = p.init_yaw**2 if ini is None or ini.sigma_att is None else 0.0
+    prm["init_att_var"] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
+    prm["init_yaw_var"] = p.init_yaw**2 if ini is None or ini.sigma_att is None else 0.0
     if kind == "ins-wind" and p.init_yaw == 0 and ini is None and cfg[C_WAIT_MAG] == 0:
         # an INS with nothing to give it a heading at the start (no magnetometer fused, and
         # no initial state): its heading is unknown, and only the GNSS accelerations turn it
-        prm[R_P0_YAW] = math.pi**2
-    prm[R_P0_BG] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
-    prm[R_P0_V] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
-    prm[R_P0_W] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2
-    prm[R_P0_WV] = prm[R_P0_W] if p.wind_vertical else 0.0
-    prm[R_P0_BA] = p.init_accel_bias**2
-    prm[R_P0_BM] = p.init_mag_bias**2
-    prm[R_SBM2] = p.mag_bias_noise**2
-    prm[R_ACC_LP] = p.accel_lowpass
-    prm[R_ACC_FUSE_DT] = 1.0 / p.accel_fuse_rate if p.accel_fuse_rate > 0 else 0.0
-    prm[R_MAG_FUSE_DT] = 1.0 / p.mag_fuse_rate if p.mag_fuse_rate > 0 else 0.0
-    prm[R_MAG_LP] = p.mag_lowpass
-    prm[R_SCALE2] = p.gyro_scale_noise**2
-    prm[R_MAG_NGATE] = p.mag_norm_gate
-    prm[R_MAG_DGATE] = p.mag_dip_gate
-    prm[R_DRAG_MU] = p.drag_mcoef
-    prm[R_DRAG_KX] = 0.0 if p.drag_bcoef_x == 0 else p.air_density / (2.0 * p.drag_bcoef_x)
-    prm[R_DRAG_KY] = 0.0 if p.drag_bcoef_y == 0 else p.air_density / (2.0 * p.drag_bcoef_y)
-    prm[R_DRAG_VAR] = p.drag_sigma**2
-    prm[R_GATE2_DRAG] = p.gate_drag**2
-    prm[R_INI_WIN] = p.init_window
-    prm[R_RESET_TOUT] = p.reset_timeout
-    prm[R_HOLD_DT] = p.unmeasured_motion_dt
-    prm[R_GNSS_TAU] = p.gnss_timing_sigma
-    prm[R_GYRO_RANGE] = p.gyro_range
-    prm[R_ACC_RANGE] = p.accel_range
-    prm[R_SPIKE_GATE] = p.imu_spike_gate
-    prm[R_ASC_P0] = p.airspeed_scale_sigma**2
-    prm[R_ASC_KN2] = p.airspeed_scale_noise**2
-    prm[R_ASC_WN2] = p.airspeed_scale_wind_noise**2
-    prm[R_ASC_TAS_VAR] = p.airspeed_scale_tas_sigma**2
-    prm[R_ASC_BETA_VAR] = p.airspeed_scale_beta_sigma**2
-    prm[R_REST_W2] = p.rest_gyro_threshold**2
-    prm[R_REST_F2] = p.rest_accel_threshold**2
-    prm[R_REST_TAU] = p.rest_tau
-    prm[R_REST_MIN_T] = p.rest_min_time
-    prm[R_REST_VAR] = p.rest_bias_sigma**2
-    prm[R_REST_CLIP] = p.rest_bias_clip
-    prm[R_LAGB] = 1.0 if p.lowpass_bias else 0.0
-    prm[R_GRAV] = site.gravity_n[2]
+        prm["init_yaw_var"] = math.pi**2
+    prm["init_bias_var"] = sig(ini.sigma_bias if ini else None, p.init_bias) ** 2
+    prm["init_v_var"] = sig(ini.sigma_v if ini else None, p.init_v if ini is None else p.gnss_sigma) ** 2
+    prm["init_wind_var"] = sig(ini.sigma_wind if ini else None, p.init_wind) ** 2
+    prm["init_wind_vertical_var"] = prm["init_wind_var"] if p.wind_vertical else 0.0
+    prm["init_accel_bias_var"] = p.init_accel_bias**2
+    prm["init_mag_bias_var"] = p.init_mag_bias**2
+    prm["mag_bias_noise2"] = p.mag_bias_noise**2
+    prm["accel_lowpass"] = p.accel_lowpass
+    prm["accel_fuse_dt"] = 1.0 / p.accel_fuse_rate if p.accel_fuse_rate > 0 else 0.0
+    prm["mag_fuse_dt"] = 1.0 / p.mag_fuse_rate if p.mag_fuse_rate > 0 else 0.0
+    prm["mag_lowpass"] = p.mag_lowpass
+    prm["gyro_scale_noise2"] = p.gyro_scale_noise**2
+    prm["mag_norm_gate"] = p.mag_norm_gate
+    prm["mag_dip_gate"] = p.mag_dip_gate
+    prm["drag_mcoef"] = p.drag_mcoef
+    prm["drag_kx"] = 0.0 if p.drag_bcoef_x == 0 else p.air_density / (2.0 * p.drag_bcoef_x)
+    prm["drag_ky"] = 0.0 if p.drag_bcoef_y == 0 else p.air_density / (2.0 * p.drag_bcoef_y)
+    prm["drag_var"] = p.drag_sigma**2
+    prm["gate_drag2"] = p.gate_drag**2
+    prm["init_window"] = p.init_window
+    prm["reset_timeout"] = p.reset_timeout
+    prm["unmeasured_motion_dt"] = p.unmeasured_motion_dt
+    prm["gnss_timing_sigma"] = p.gnss_timing_sigma
+    prm["gyro_range"] = p.gyro_range
+    prm["accel_range"] = p.accel_range
+    prm["imu_spike_gate"] = p.imu_spike_gate
+    prm["asc_init_var"] = p.airspeed_scale_sigma**2
+    prm["asc_kn2"] = p.airspeed_scale_noise**2
+    prm["asc_wn2"] = p.airspeed_scale_wind_noise**2
+    prm["asc_tas_var"] = p.airspeed_scale_tas_sigma**2
+    prm["asc_beta_var"] = p.airspeed_scale_beta_sigma**2
+    prm["rest_w2"] = p.rest_gyro_threshold**2
+    prm["rest_f2"] = p.rest_accel_threshold**2
+    prm["rest_tau"] = p.rest_tau
+    prm["rest_min_t"] = p.rest_min_time
+    prm["rest_var"] = p.rest_bias_sigma**2
+    prm["rest_clip"] = p.rest_bias_clip
+    prm["lowpass_bias"] = 1.0 if p.lowpass_bias else 0.0
+    prm["gravity"] = site.gravity_n[2]
     if site.mag_n is not None:
-        prm[R_SITE_MAG : R_SITE_MAG + 3] = site.mag_n
+        prm["site_mag"] = site.mag_n
     if ini is not None:
-        prm[R_INI_Q : R_INI_Q + 4] = _vec(ini.q_nb, 4, "q_nb")
+        prm["init_q"] = _vec(ini.q_nb, 4, "q_nb")
         if ini.gyro_bias_b is not None:
-            prm[R_INI_BG : R_INI_BG + 3] = _vec(ini.gyro_bias_b, 3, "gyro_bias_b")
+            prm["init_bias"] = _vec(ini.gyro_bias_b, 3, "gyro_bias_b")
         if ini.v_n is not None:
-            prm[R_INI_V : R_INI_V + 3] = _vec(ini.v_n, 3, "v_n")
+            prm["init_v"] = _vec(ini.v_n, 3, "v_n")
         if ini.wind_n is not None:
-            prm[R_INI_W : R_INI_W + 3] = _vec(ini.wind_n, 3, "wind_n")
+            prm["init_wind"] = _vec(ini.wind_n, 3, "wind_n")
     flags = np.zeros(N_FLAGS, dtype=np.int64)
     flags[L_FIRST : L_FIRST + N_SENSORS] = -1
     x = np.zeros(N_X)

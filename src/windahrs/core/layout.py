@@ -1,6 +1,9 @@
 """The compiled filter's state records: what a running error-state or additive EKF carries
-between events, as flat arrays named by the index constants below, and the sensor registry
-(:data:`SENSORS`) the innovation logs are laid out from.
+between events, and the sensor registry (:data:`SENSORS`) the innovation logs are laid out
+from. The parameters are one named record (:data:`PRM`, a numpy structured scalar read as
+``prm["name"]`` in compiled code and in Python alike); the configuration, the state, the flags
+and the scratch space are still flat arrays named by the index constants below (the move of
+those to records is planned in docs/core.md, "Named records").
 
 :class:`KernelState` holds nine arrays: the configuration (ints) and parameters (floats)
 encoded once from the estimator's parameters, the nominal state with the samples it
@@ -134,72 +137,97 @@ C_OFF = 28  # (N_SENSORS,) first row of each sensor's log
 C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
 N_CFG = C_CAP + N_SENSORS
 
-# prm: parameters (float64), fixed for a run; noises squared once in make_state.
-R_SG2 = 0  # gyro noise density^2
-R_SB2 = 1  # gyro bias noise^2
-R_SA2 = 2  # accel noise^2
-R_SBA2 = 3  # accel bias noise^2
-R_WH2 = 4  # horizontal wind noise^2
-R_WV2 = 5  # vertical wind noise^2
-R_ACC_VAR = 6
-R_NORM_GATE = 7
-R_MAG_SIGMA = 8
-R_MAG_VAR = 9
-R_GNSS_VAR = 10
-R_TAS_VAR = 11
-R_VANE_VAR = 12
-R_BETA_VAR = 13
-R_GATE2_ACC = 14
-R_GATE2_MAG = 15
-R_GATE2_GNSS = 16
-R_GATE2_AIR = 17
-R_P0_ATT = 18  # initial variances
-R_P0_BG = 19
-R_P0_V = 20
-R_P0_W = 21
-R_P0_BA = 22
-R_GRAV = 23
-R_SITE_MAG = 24  # (3,)
-R_INI_Q = 27  # (4,)
-R_INI_BG = 31  # (3,)
-R_INI_V = 34  # (3,)
-R_INI_W = 37  # (3,)
-R_P0_BM = 40
-R_SBM2 = 41  # magnetometer bias noise^2
-R_ACC_LP = 42  # accel_lowpass, s (0: raw samples)
-R_MAG_LP = 43  # mag_lowpass, s (0: raw samples)
-R_SCALE2 = 44  # gyro_scale_noise^2
-R_MAG_NGATE = 45  # mag_norm_gate (0: off)
-R_MAG_DGATE = 46  # mag_dip_gate, rad (0: off)
-R_DRAG_MU = 47  # drag_mcoef, 1/s
-R_DRAG_KX = 48  # air_density / (2 drag_bcoef_x), 1/m (0: no bluff-body term)
-R_DRAG_KY = 49
-R_DRAG_VAR = 50  # drag_sigma^2
-R_GATE2_DRAG = 51
-R_P0_WV = 52  # initial vertical-wind variance (0: held at zero)
-R_INI_WIN = 53  # init_window, s: the specific force averaged before the attitude is initialised
-R_RESET_TOUT = 54  # reset_timeout, s (0: never reset)
-R_HOLD_DT = 55  # unmeasured_motion_dt, s: IMU steps longer than this add the held-sample noise
-R_GNSS_TAU = 56  # gnss_timing_sigma, s
-R_GYRO_RANGE = 57  # gyro_range, rad/s
-R_ACC_RANGE = 58  # accel_range, m/s^2
-R_SPIKE_GATE = 59  # imu_spike_gate (0: off)
-R_ASC_P0 = 60  # airspeed_scale_sigma^2: initial variance of the inverse scale
-R_ASC_KN2 = 61  # airspeed_scale_noise^2, 1/s^2/Hz
-R_ASC_WN2 = 62  # airspeed_scale_wind_noise^2, (m/s^2)^2/Hz
-R_ASC_TAS_VAR = 63  # airspeed_scale_tas_sigma^2, (m/s)^2
-R_ASC_BETA_VAR = 64  # airspeed_scale_beta_sigma^2, rad^2
-R_REST_W2 = 65  # rest_gyro_threshold^2, (rad/s)^2
-R_REST_F2 = 66  # rest_accel_threshold^2, (m/s^2)^2
-R_REST_TAU = 67  # rest_tau, s
-R_REST_MIN_T = 68  # rest_min_time, s
-R_REST_VAR = 69  # rest_bias_sigma^2, (rad/s)^2
-R_REST_CLIP = 70  # rest_bias_clip, rad/s
-R_LAGB = 71  # lowpass_bias: 1 the low-passed gravity and magnetometer measurements carry their gyro-bias columns
-R_P0_YAW = 72  # init_yaw^2, rad^2 (0: init_att's)
-R_ACC_FUSE_DT = 73  # 1 / accel_fuse_rate, s (0: the gravity aid fuses at every IMU sample)
-R_MAG_FUSE_DT = 74  # 1 / mag_fuse_rate, s (0: the magnetometer's mean fused at every sample)
-N_PRM = 75
+#: prm: the parameters, fixed for a run, as one named record: a numpy structured scalar
+#: (``np.zeros(1, PRM)[0]``), read as ``prm["name"]`` in compiled code and in Python alike
+#: (numba resolves a field by its name at compile time: the same load as a constant index,
+#: docs/core.md "Named records"). Filled once by core.kernel.make_state from the estimator's
+#: parameters (filters.params.EskfParams, whose names the fields keep; "2" ends a square,
+#: "_var" a variance), grouped by the part of the filter that reads them. The paper's family
+#: extends it (windahrs.filters.additive.ADD_PRM). (name, size, meaning)
+PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
+    # process model (core.predict)
+    ("gyro_noise2", 1, "gyro_noise^2, (rad/s)^2/Hz"),
+    ("gyro_bias_noise2", 1, "gyro_bias_noise^2, (rad/s^2)^2/Hz"),
+    ("gyro_scale_noise2", 1, "gyro_scale_noise^2: rate-proportional gyro noise"),
+    ("accel_noise2", 1, "accel_noise^2, the INS input's, (m/s^2)^2/Hz"),
+    ("accel_bias_noise2", 1, "accel_bias_noise^2, (m/s^3)^2/Hz"),
+    ("wind_noise2", 1, "wind_noise^2, horizontal, (m/s^2)^2/Hz"),
+    ("wind_noise_vertical2", 1, "wind_noise_vertical^2 (0: the vertical wind held)"),
+    ("mag_bias_noise2", 1, "mag_bias_noise^2, T^2/s"),
+    ("gravity", 1, "the site's gravity, m/s^2"),
+    # initial state and spreads (core.kernel, core.reset)
+    ("init_att_var", 1, "init_att^2, rad^2 (or the given initial state's)"),
+    ("init_yaw_var", 1, "init_yaw^2, rad^2 (0: init_att's)"),
+    ("init_bias_var", 1, "init_bias^2, (rad/s)^2"),
+    ("init_v_var", 1, "init_v^2, (m/s)^2"),
+    ("init_wind_var", 1, "init_wind^2, (m/s)^2"),
+    ("init_wind_vertical_var", 1, "the initial vertical-wind variance (0: held at zero)"),
+    ("init_accel_bias_var", 1, "init_accel_bias^2, (m/s^2)^2"),
+    ("init_mag_bias_var", 1, "init_mag_bias^2, T^2"),
+    ("init_window", 1, "init_window, s: the specific force averaged before the attitude is initialised"),
+    ("init_q", 4, "the given initial attitude q_nb"),
+    ("init_bias", 3, "... its gyro bias, rad/s"),
+    ("init_v", 3, "... its velocity, m/s"),
+    ("init_wind", 3, "... its wind, m/s"),
+    ("reset_timeout", 1, "reset_timeout, s (0: never reset)"),
+    # IMU screen (core.imu_screen)
+    ("gyro_range", 1, "gyro_range, rad/s"),
+    ("accel_range", 1, "accel_range, m/s^2"),
+    ("imu_spike_gate", 1, "imu_spike_gate (0: off)"),
+    ("unmeasured_motion_dt", 1, "unmeasured_motion_dt, s: IMU steps longer than this add the held-sample noise"),
+    # gravity (aid.gravity)
+    ("accel_var", 1, "accel_sigma^2, (m/s^2)^2"),
+    ("accel_norm_gate", 1, "accel_norm_gate, share of g"),
+    ("gate_accel2", 1, "gate_accel^2"),
+    ("accel_lowpass", 1, "accel_lowpass, s (0: raw samples)"),
+    ("accel_fuse_dt", 1, "1 / accel_fuse_rate, s (0: the mean fused at every IMU sample)"),
+    ("lowpass_bias", 1, "lowpass_bias: 1 the low-passed means carry their gyro-bias columns"),
+    # magnetometer (aid.mag)
+    ("mag_sigma", 1, "mag_sigma, T"),
+    ("mag_var", 1, "mag_sigma^2, T^2"),
+    ("gate_mag2", 1, "gate_mag^2"),
+    ("mag_lowpass", 1, "mag_lowpass, s (0: raw samples)"),
+    ("mag_fuse_dt", 1, "1 / mag_fuse_rate, s (0: the mean fused at every sample)"),
+    ("mag_norm_gate", 1, "mag_norm_gate, share of the reference's norm (0: off)"),
+    ("mag_dip_gate", 1, "mag_dip_gate, rad (0: off)"),
+    ("site_mag", 3, "the site's field, NED, T (0: unknown)"),
+    # GNSS velocity (aid.gnss_vel)
+    ("gnss_var", 1, "gnss_sigma^2, (m/s)^2"),
+    ("gate_gnss2", 1, "gate_gnss^2"),
+    ("gnss_timing_sigma", 1, "gnss_timing_sigma, s"),
+    # air data (aid.air_vector, aid.tas, aid.sideslip, aid.aoa)
+    ("tas_var", 1, "tas_sigma^2, (m/s)^2"),
+    ("vane_var", 1, "vane_sigma^2, rad^2"),
+    ("sideslip_var", 1, "sideslip_sigma^2, rad^2 (synthetic sideslip)"),
+    ("gate_air2", 1, "gate_air^2"),
+    # airspeed scale (aid.airspeed_scale)
+    ("asc_init_var", 1, "airspeed_scale_sigma^2: initial variance of the inverse scale"),
+    ("asc_kn2", 1, "airspeed_scale_noise^2, 1/s^2/Hz"),
+    ("asc_wn2", 1, "airspeed_scale_wind_noise^2, (m/s^2)^2/Hz"),
+    ("asc_tas_var", 1, "airspeed_scale_tas_sigma^2, (m/s)^2"),
+    ("asc_beta_var", 1, "airspeed_scale_beta_sigma^2, rad^2"),
+    # multirotor drag (aid.drag)
+    ("drag_mcoef", 1, "drag_mcoef, 1/s"),
+    ("drag_kx", 1, "air_density / (2 drag_bcoef_x), 1/m (0: no bluff-body term)"),
+    ("drag_ky", 1, "air_density / (2 drag_bcoef_y), 1/m"),
+    ("drag_var", 1, "drag_sigma^2, (m/s^2)^2"),
+    ("gate_drag2", 1, "gate_drag^2"),
+    # the gyro at rest (aid.rest)
+    ("rest_w2", 1, "rest_gyro_threshold^2, (rad/s)^2"),
+    ("rest_f2", 1, "rest_accel_threshold^2, (m/s^2)^2"),
+    ("rest_tau", 1, "rest_tau, s"),
+    ("rest_min_t", 1, "rest_min_time, s"),
+    ("rest_var", 1, "rest_bias_sigma^2, (rad/s)^2"),
+    ("rest_clip", 1, "rest_bias_clip, rad/s"),
+)
+
+
+def record_dtype(fields: tuple[tuple[str, int, str], ...]) -> np.dtype[Any]:
+    """The structured dtype of (name, size, description) float64 fields (size 1: a scalar)."""
+    return np.dtype([(f, np.float64) if n == 1 else (f, np.float64, (n,)) for f, n, _ in fields])
+
+
+PRM = record_dtype(PRM_FIELDS)
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -318,7 +346,7 @@ class KernelState(NamedTuple):
     the index constants of this module name their entries."""
 
     cfg: I64  # (N_CFG,) C_*
-    prm: F64  # (N_PRM,) R_*
+    prm: np.void  # PRM record: prm["name"]
     x: F64  # (N_X,) X_*
     flags: I64  # (N_FLAGS,) S_*, L_*, K_*
     P: F64  # (n_pad, n_pad) covariance in [:n, :n], zero padding to whole SIMD lanes

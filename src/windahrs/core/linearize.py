@@ -50,9 +50,12 @@ __all__ = ["Linearization"]
 F64 = NDArray[np.float64]
 
 #: The process-noise parameters of the prediction (zeroed for Phi alone).
-_PROCESS_NOISE = (K.R_SG2, K.R_SB2, K.R_SA2, K.R_SBA2, K.R_WH2, K.R_WV2, K.R_SBM2, K.R_SCALE2)
+_PROCESS_NOISE = (
+    "gyro_noise2", "gyro_bias_noise2", "accel_noise2", "accel_bias_noise2", "wind_noise2", "wind_noise_vertical2",
+    "mag_bias_noise2", "gyro_scale_noise2",
+)  # fmt: skip
 #: The innovation gates, squared sigmas: NaN rejects every sample whatever its innovation.
-_GATES = (K.R_GATE2_ACC, K.R_GATE2_MAG, K.R_GATE2_GNSS, K.R_GATE2_AIR, K.R_GATE2_DRAG)
+_GATES = ("gate_accel2", "gate_mag2", "gate_gnss2", "gate_air2", "gate_drag2")
 
 
 class Linearization:
@@ -71,8 +74,8 @@ class Linearization:
         st = make_state(kind, False, params, site, None, frozenset(), caps, layout=layout)
         for g in _GATES:
             st.prm[g] = math.nan
-        st.prm[K.R_NORM_GATE] = math.inf
-        st.prm[K.R_MAG_NGATE] = st.prm[K.R_MAG_DGATE] = 0.0
+        st.prm["accel_norm_gate"] = math.inf
+        st.prm["mag_norm_gate"] = st.prm["mag_dip_gate"] = 0.0
         st.flags[K.S_INIT] = 1
         if site.mag_n is not None:
             st.x[K.X_MAGN : K.X_MAGN + 3] = site.mag_n
@@ -131,8 +134,9 @@ class Linearization:
         st, n = self.st, self.dim
         x0 = st.x.copy()
         Q = self.predict(np.zeros((n, n)), w_b, f_b, dt)
-        noise = st.prm[list(_PROCESS_NOISE)].copy()
-        st.prm[list(_PROCESS_NOISE)] = 0.0
+        noise = {f: float(st.prm[f]) for f in _PROCESS_NOISE}
+        for f in _PROCESS_NOISE:
+            st.prm[f] = 0.0
         Phi = np.empty((n, n))
         try:
             for i in range(n):
@@ -142,7 +146,8 @@ class Linearization:
                 M = self.predict(E, w_b, f_b, dt)
                 Phi[:, i] = M[:, i] / math.sqrt(M[i, i])
         finally:
-            st.prm[list(_PROCESS_NOISE)] = noise
+            for f, v in noise.items():
+                st.prm[f] = v
             st.x[:] = x0
         return Phi, Q
 

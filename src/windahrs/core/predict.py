@@ -26,17 +26,6 @@ from windahrs.core.layout import (
     C_IV,
     C_IW,
     C_N,
-    R_ACC_LP,
-    R_GRAV,
-    R_HOLD_DT,
-    R_SA2,
-    R_SB2,
-    R_SBA2,
-    R_SBM2,
-    R_SCALE2,
-    R_SG2,
-    R_WH2,
-    R_WV2,
     W_DX,
     W_M,
     W_T,
@@ -111,7 +100,7 @@ def track_accel_noise(cfg, prm, x, dt):
     the first seconds are weighed by the noise measured, not by a variance growing from zero.
     Read by the gravity aid source (its R) and the INS's prediction (its input's density)."""
     d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
-    gain = steady_gain(x, np.int64(X_NGAIN), dt, prm[R_ACC_LP] if prm[R_ACC_LP] > 0 else NOISE_TAU)
+    gain = steady_gain(x, np.int64(X_NGAIN), dt, prm["accel_lowpass"] if prm["accel_lowpass"] > 0 else NOISE_TAU)
     if cfg[C_AVAR] == 2:
         x[X_NAVAR] += 1.0
         gain = max(gain, 1.0 / x[X_NAVAR])
@@ -188,7 +177,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             fx, fy, fz = fmx - x[X_BA], fmy - x[X_BA + 1], fmz - x[X_BA + 2]
         x[X_V] += (C[0] * fx + C[1] * fy + C[2] * fz + 0.0) * dt
         x[X_V + 1] += (C[3] * fx + C[4] * fy + C[5] * fz + 0.0) * dt
-        x[X_V + 2] += (C[6] * fx + C[7] * fy + C[8] * fz + prm[R_GRAV]) * dt
+        x[X_V + 2] += (C[6] * fx + C[7] * fy + C[8] * fz + prm["gravity"]) * dt
         # Phi[v, att] = CF phi11, Phi[v, bg] = CF phi12 with CF = -C [f]x dt; Phi[v, ba] = -C dt
         f00, f01, f02 = (
             (-C[1] * fz + C[2] * fy) * dt,
@@ -264,13 +253,13 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             P[r, c] = v
             P[c, r] = v
     # process noise
-    sg2, sb2 = prm[R_SG2], prm[R_SB2]
-    if prm[R_SCALE2] > 0:  # rate-proportional gyro noise
-        sg2 = sg2 + prm[R_SCALE2] * (wx * wx + wy * wy + wz * wz)
+    sg2, sb2 = prm["gyro_noise2"], prm["gyro_bias_noise2"]
+    if prm["gyro_scale_noise2"] > 0:  # rate-proportional gyro noise
+        sg2 = sg2 + prm["gyro_scale_noise2"] * (wx * wx + wy * wy + wz * wz)
     qaa = sg2 * dt + sb2 * dt**3 / 3.0
     qab = -sb2 * dt**2 / 2.0
     qbb = sb2 * dt
-    sa2 = prm[R_SA2]
+    sa2 = prm["accel_noise2"]
     if iv >= 0 and cfg[C_AVAR] >= 1:  # the INS input's density at least the noise measured
         sa2 = max(sa2, x[X_AVAR] * dt)  # (a per-sample variance: density^2 = var * step)
     for k in range(3):
@@ -281,13 +270,13 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         if iv >= 0:
             P[iv + k, iv + k] += sa2 * dt
         if iba >= 0:
-            P[iba + k, iba + k] += prm[R_SBA2] * dt
+            P[iba + k, iba + k] += prm["accel_bias_noise2"] * dt
         if cfg[C_IBM] >= 0:
-            P[cfg[C_IBM] + k, cfg[C_IBM] + k] += prm[R_SBM2] * dt
+            P[cfg[C_IBM] + k, cfg[C_IBM] + k] += prm["mag_bias_noise2"] * dt
     if iw >= 0:
-        P[iw, iw] += prm[R_WH2] * dt
-        P[iw + 1, iw + 1] += prm[R_WH2] * dt
-        P[iw + 2, iw + 2] += prm[R_WV2] * dt
+        P[iw, iw] += prm["wind_noise2"] * dt
+        P[iw + 1, iw + 1] += prm["wind_noise2"] * dt
+        P[iw + 2, iw + 2] += prm["wind_noise_vertical2"] * dt
     return e
 
 
@@ -340,7 +329,7 @@ def _noise_add(cfg, prm, P, Xi, dt):
     ``-sb2 dt^2/4 Xi`` with the gyro bias, ``sb2 dt I`` on it, the wind's random walk;
     Xi (4, 3) = Xi(q_k). A state without gyro bias (cfg[C_IBG] < 0, [ekf]) has the
     quaternion block alone (sb2 = 0). Shared by :func:`_predict_add` and the additive UKF."""
-    sg2, sb2 = prm[R_SG2], prm[R_SB2]
+    sg2, sb2 = prm["gyro_noise2"], prm["gyro_bias_noise2"]
     ib = cfg[C_IBG] + 1 if cfg[C_IBG] >= 0 else -1
     iw = cfg[C_IW] + 1 if cfg[C_IW] >= 0 else -1
     cqq = sg2 * dt / 4.0 + sb2 * dt**3 / 12.0
@@ -356,9 +345,9 @@ def _noise_add(cfg, prm, P, Xi, dt):
         for k in range(3):
             P[ib + k, ib + k] += sb2 * dt
     if iw >= 0:
-        P[iw, iw] += prm[R_WH2] * dt
-        P[iw + 1, iw + 1] += prm[R_WH2] * dt
-        P[iw + 2, iw + 2] += prm[R_WV2] * dt
+        P[iw, iw] += prm["wind_noise2"] * dt
+        P[iw + 1, iw + 1] += prm["wind_noise2"] * dt
+        P[iw + 2, iw + 2] += prm["wind_noise_vertical2"] * dt
 
 
 @njit(**_JIT_FMA)
@@ -461,7 +450,7 @@ def add_held_sample_noise(cfg, prm, x, P, work, dt):
     (rotated to NED), with dw, df the changes of the gyro and accelerometer samples since the
     previous ones (x[X_DW], x[X_DF]). Additive form: ``1/4 Xi(q) diag(d) Xi(q)^T`` on the
     quaternion (tangent to q, so adding it after the normalisation changes nothing else)."""
-    if dt > prm[R_HOLD_DT]:
+    if dt > prm["unmeasured_motion_dt"]:
         add_unmeasured_motion(cfg, x, P, work, dt)
 
 

@@ -30,10 +30,6 @@ from windahrs.core.layout import (
     C_SITE_MAG,
     INN_MAG,
     INN_RESET,
-    R_P0_ATT,
-    R_P0_BG,
-    R_P0_YAW,
-    R_RESET_TOUT,
     S_MAGN,
     W_M,
     W_NU,
@@ -56,7 +52,7 @@ def accepted_at(x, sensor, t):
 def timed_out(prm, x, sensor, t):
     """Whether ``sensor`` has not agreed with the state for longer than reset_timeout
     (never before initialisation, nor with reset_timeout 0)."""
-    tout = prm[R_RESET_TOUT]
+    tout = prm["reset_timeout"]
     return tout > 0 and t - x[X_TOK + sensor] > tout
 
 
@@ -104,8 +100,8 @@ def set_attitude_cov(cfg, prm, x, P, work):
     fusion, in the large-gain regime, stands for its own sample only."""
     x[X_NFUSE] = 0.0
     x[X_NMFUSE] = 0.0
-    var = prm[R_P0_ATT]
-    if prm[R_P0_YAW] > 0.0:
+    var = prm["init_att_var"]
+    if prm["init_yaw_var"] > 0.0:
         _set_attitude_cov_yaw(cfg, prm, x, P, work)
         return
     if cfg[C_ADD] == 1:
@@ -127,7 +123,7 @@ def set_attitude_cov(cfg, prm, x, P, work):
 @njit(**_JIT_CORE)
 def _set_attitude_cov_yaw(cfg, prm, x, P, work):
     """set_attitude_cov with a separate spread about the nav vertical (init_yaw)."""
-    attitude_cov_about_vertical(cfg, x, P, work, prm[R_P0_ATT], prm[R_P0_YAW])
+    attitude_cov_about_vertical(cfg, x, P, work, prm["init_att_var"], prm["init_yaw_var"])
 
 
 @njit(**_JIT_CORE)
@@ -162,7 +158,7 @@ def attitude_cov_about_vertical(cfg, x, P, work, var, var_yaw):
 def reset_gyro_bias(cfg, prm, x, P):
     """The gyro bias to zero with its initial spread: a bias learnt while the attitude was
     lost is not to be trusted."""
-    restart(cfg, x, P, X_BG, cfg[C_IBG], prm[R_P0_BG])
+    restart(cfg, x, P, X_BG, cfg[C_IBG], prm["init_bias_var"])
 
 
 @njit(**_JIT_CORE)

@@ -112,7 +112,6 @@ from windahrs.core.layout import (
     N_WORK,
     N_X,
     NMAX,
-    R_HOLD_DT,
     S_CLIP,
     S_INIT,
     S_NHELD,
@@ -337,7 +336,7 @@ def backward(cfg, prm, nom, Pr, aux, n_pad):
                 Pa[r, c] = Pr[k, r, c] if (r < n and c < n) else 0.0
                 Pi[r, c] = 1.0 if (r == c and r < n) else 0.0
         _predict_es(cfg, prm, xa, Pa, work, w0, w1, w2, f0, f1, f2, dt)
-        if dt > prm[R_HOLD_DT]:
+        if dt > prm["unmeasured_motion_dt"]:
             add_held_sample_noise(cfg, prm, xa, Pa, work, dt)
         # Phi: the rows of Phi P the same prediction leaves in work[W_M] for P = I
         _load(xb, nom, k, aux, j)

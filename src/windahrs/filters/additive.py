@@ -134,27 +134,29 @@ UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
 # no error-state blocks, the log layout)
 C_PAPER_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
 N_CFG_ADD = core.N_CFG + 5
-# prm (float64): parameters; after the core's fields (core.layout: the process noise of
-# core.predict's additive model, R_SG2 = gyro_noise^2 and R_SB2 = gyro_bias_rw^2; the rest 0)
-_PRM0 = core.N_PRM
-R_P0_VAR = _PRM0 + 0  # paper: initial variance per quaternion parameter
-R_ATT0_VAR = _PRM0 + 1  # initial attitude variance per axis, rad^2
-R_BG0_VAR = _PRM0 + 2  # initial gyro-bias variance per axis
-R_Q_VAR = _PRM0 + 3  # paper: process variance per quaternion parameter per step
-R_PAPER_ACC_VAR = _PRM0 + 4  # paper: accelerometer variance per component
-R_PAPER_MAG_VAR = _PRM0 + 5  # paper: magnetometer variance per component
-R_AIR_VAR = _PRM0 + 6  # paper: air-flow variance per component
-R_GNSS_AGE = _PRM0 + 7  # paper: oldest GNSS velocity the air row uses, s
-R_ACC_NOISE = _PRM0 + 8  # accelerometer white-noise density
-R_ACC_UNIT2 = _PRM0 + 9  # extra variance of the normalised accelerometer
-R_MAG_NOISE = _PRM0 + 10  # magnetometer noise per sample, T
-R_MAG_UNIT2 = _PRM0 + 11  # extra variance of the normalised magnetometer
-R_G_NORM = _PRM0 + 12  # |g|, m/s^2
-R_SPREAD = _PRM0 + 13  # UKF: n + lambda
-R_SITE_FIELD = _PRM0 + 14  # (3,) the site's field, or 0
-R_QSTART = _PRM0 + 17  # (4,) fixed initial attitude
-R_B0 = _PRM0 + 21  # (3,) initial gyro bias
-N_PRM_ADD = _PRM0 + 24
+#: This family's parameters, after the core's (whose fields keep their meaning: the process
+#: noise of core.predict's additive model, gyro_noise2 and gyro_bias_noise2, from the paper's
+#: gyro_noise and gyro_bias_rw; the rest 0).
+ADD_PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("p0_var", 1, "paper: initial variance per quaternion parameter"),
+    ("att0_var", 1, "initial attitude variance per axis, rad^2"),
+    ("bg0_var", 1, "initial gyro-bias variance per axis"),
+    ("q_var", 1, "paper: process variance per quaternion parameter per step"),
+    ("paper_acc_var", 1, "paper: accelerometer variance per component"),
+    ("paper_mag_var", 1, "paper: magnetometer variance per component"),
+    ("air_var", 1, "paper: air-flow variance per component"),
+    ("gnss_age", 1, "paper: oldest GNSS velocity the air row uses, s"),
+    ("acc_noise", 1, "accelerometer white-noise density"),
+    ("acc_unit2", 1, "extra variance of the normalised accelerometer"),
+    ("mag_noise", 1, "magnetometer noise per sample, T"),
+    ("mag_unit2", 1, "extra variance of the normalised magnetometer"),
+    ("g_norm", 1, "|g|, m/s^2"),
+    ("spread", 1, "UKF: n + lambda"),
+    ("site_field", 3, "the site's field, or 0"),
+    ("qstart", 4, "fixed initial attitude"),
+    ("b0", 3, "initial gyro bias"),
+)
+ADD_PRM = core.record_dtype(core.PRM_FIELDS + ADD_PRM_FIELDS)
 # s (float64): the remembered samples
 S_TIMU, S_TSTATE, S_DT = 0, 1, 2
 S_F = 3  # (3,) last specific force
@@ -173,7 +175,7 @@ _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer'
 
 
 class KernelState(NamedTuple):
-    """Everything a running filter needs, in arrays: cfg (N_CFG_ADD,) int64, prm (N_PRM_ADD,),
+    """Everything a running filter needs, in arrays: cfg (N_CFG_ADD,) int64, prm (an ADD_PRM record),
     s (N_S,) remembered samples, flags (N_FLAGS_ADD,) int64, x (n,), P (n, n), wm and wc
     (2n+1,) unscented weights (UKF; (1,) otherwise), and as in core.layout.KernelState:
     work (N_WORK, NMAX) scratch rows, sup (2, NMAX) the columns of H (row 1: all n),
@@ -235,13 +237,13 @@ def _start(cfg, prm, flags, x, P, q_raw):
             P[i, j] = 0.0
     if cfg[C_PAPER_KIND] == KIND_PAPER and cfg[C_P0_ISO] == 1:
         for i in range(4):
-            P[i, i] = prm[R_P0_VAR]
+            P[i, i] = prm["p0_var"]
     else:
-        P[:4, :4] = quat_cov_from_att_cov(q, prm[R_ATT0_VAR] * np.eye(3))
+        P[:4, :4] = quat_cov_from_att_cov(q, prm["att0_var"] * np.eye(3))
     x[:4] = q
     for i in range(4, n):
-        x[i] = prm[R_B0 + i - 4]
-        P[i, i] = prm[R_BG0_VAR]
+        x[i] = prm["b0"][i - 4]
+        P[i, i] = prm["bg0_var"]
     flags[F_READY] = 1
 
 
@@ -268,12 +270,12 @@ def _predict(cfg, prm, x, P, wm, wc, work, w_b, dt):
         # The paper's filter has no bias state: the raw gyro drives eq. 6.
         Phi = transition_picard4(w_b * dt)
         x[:] = _matvec4(Phi, x)
-        P[:, :] = propagate_cov(Phi, P, prm[R_Q_VAR] * np.eye(4))
+        P[:, :] = propagate_cov(Phi, P, prm["q_var"] * np.eye(4))
         _normalize(cfg, x, P, work)
     elif kind == KIND_EKF:
         _predict_add(cfg, prm, x, P, work, w_b[0], w_b[1], w_b[2], dt)
     else:
-        S = sigma_points(x, P, prm[R_SPREAD])
+        S = sigma_points(x, P, prm["spread"])
         npts = S.shape[0]
         for p in range(npts):
             # q * Exp((w - b) dt) for a constant rate over the step, normalised
@@ -334,7 +336,7 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor
     infinity accepts every finite innovation), then its normalisation. The UKF: the
     unscented update, the normalisation, the log row (accepted)."""
     if cfg[C_PAPER_KIND] == KIND_UKF:
-        S = sigma_points(x, P, prm[R_SPREAD])
+        S = sigma_points(x, P, prm["spread"])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
             _observe_point(S, p, r_n, Y)
@@ -370,7 +372,7 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b)
     if first:
         # The first sample only initialises: its rate belongs to the interval before it.
         if cfg[C_QSTART] == 1:
-            _start(cfg, prm, flags, x, P, prm[R_QSTART : R_QSTART + 4])
+            _start(cfg, prm, flags, x, P, prm["qstart"])
         elif cfg[C_HAS_MAG] == 0:
             _start(cfg, prm, flags, x, P, triad(f_b, f_b, False, f_b, False))
         return
@@ -379,11 +381,11 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b)
     s[S_DT] = dt
     _predict(cfg, prm, x, P, wm, wc, work, w_b, dt)
     if cfg[C_PAPER_KIND] == KIND_PAPER:
-        var = prm[R_PAPER_ACC_VAR]
+        var = prm["paper_acc_var"]
     else:
         # Per-sample noise sigma_c / sqrt(dt) (Kalibr), divided by |f| = g for the unit vector.
-        sw = prm[R_ACC_NOISE] / math.sqrt(max(dt, 1e-6)) / prm[R_G_NORM]
-        var = sw * sw + prm[R_ACC_UNIT2]
+        sw = prm["acc_noise"] / math.sqrt(max(dt, 1e-6)) / prm["g_norm"]
+        var = sw * sw + prm["acc_unit2"]
     sensor = np.int64(INN_ACCEL)
     # _UP_N copied: numba types a global array read-only, and a read-only r_n would compile
     # _update_vector a second time (8 s cold) beside the magnetometer's.
@@ -411,15 +413,15 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, mag_b):
         s[S_MAGNORM] = norm
         flags[F_MAGREF] = 1
     if flags[F_READY] == 0:
-        site = prm[R_SITE_FIELD : R_SITE_FIELD + 3]
+        site = prm["site_field"]
         q0 = triad(f_b, mag_b, True, site, _norm3(site) > 0.0)
         _start(cfg, prm, flags, x, P, q0)
         return  # this sample made the initial attitude; fusing it again would reuse it
     if cfg[C_PAPER_KIND] == KIND_PAPER:
-        var = prm[R_PAPER_MAG_VAR]
+        var = prm["paper_mag_var"]
     else:
-        r = prm[R_MAG_NOISE] / s[S_MAGNORM]
-        var = r * r + prm[R_MAG_UNIT2]
+        r = prm["mag_noise"] / s[S_MAGNORM]
+        var = r * r + prm["mag_unit2"]
     r_n = s[S_MAGREF : S_MAGREF + 3].copy()
     sensor = np.int64(INN_MAG)
     _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, mag_b / norm, r_n, var)
@@ -446,7 +448,7 @@ def step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, aoa, beta
     if flags[F_READY] == 0:
         flags[K_UNF + 1] += 1  # air_before_init
         return
-    if flags[F_V] == 0 or t - s[S_TGNSS] > prm[R_GNSS_AGE]:
+    if flags[F_V] == 0 or t - s[S_TGNSS] > prm["gnss_age"]:
         flags[K_UNF + 2] += 1  # air_no_gnss
         return
     u = s[S_V : S_V + 3] - wind_n
@@ -459,7 +461,7 @@ def step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, aoa, beta
     z[1] = math.sin(beta)
     z[2] = math.sin(aoa) * math.cos(beta)
     sensor = np.int64(INN_AIR)
-    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, z, u / speed, prm[R_AIR_VAR])
+    _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor, t, z, u / speed, prm["air_var"])
 
 
 @njit(**_JIT)
@@ -574,46 +576,46 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     cfg[C_QSTART] = int(c.q_start is not None)
     cfg[C_USE_AIR] = int(c.use_air)
     cfg[C_P0_ISO] = int(c.p0_iso)
-    prm = np.zeros(N_PRM_ADD)
-    prm[R_P0_VAR] = c.p0_var
-    prm[R_ATT0_VAR] = c.att0_var
-    prm[R_BG0_VAR] = c.bg0_var
-    prm[R_Q_VAR] = c.process_var
-    prm[R_PAPER_ACC_VAR] = c.acc_var
-    prm[R_PAPER_MAG_VAR] = c.mag_var
-    prm[R_AIR_VAR] = c.air_var
-    prm[R_GNSS_AGE] = c.gnss_max_age
-    prm[core.R_SG2] = c.gyro_noise**2
-    prm[core.R_SB2] = c.gyro_bias_rw**2
-    prm[R_ACC_NOISE] = c.accel_noise
-    prm[R_ACC_UNIT2] = c.accel_sigma_unit**2
-    prm[R_MAG_NOISE] = c.mag_noise
-    prm[R_MAG_UNIT2] = c.mag_sigma_unit**2
-    prm[R_G_NORM] = site.gravity
+    prm = np.zeros(1, ADD_PRM)[0]
+    prm["p0_var"] = c.p0_var
+    prm["att0_var"] = c.att0_var
+    prm["bg0_var"] = c.bg0_var
+    prm["q_var"] = c.process_var
+    prm["paper_acc_var"] = c.acc_var
+    prm["paper_mag_var"] = c.mag_var
+    prm["air_var"] = c.air_var
+    prm["gnss_age"] = c.gnss_max_age
+    prm["gyro_noise2"] = c.gyro_noise**2
+    prm["gyro_bias_noise2"] = c.gyro_bias_rw**2
+    prm["acc_noise"] = c.accel_noise
+    prm["acc_unit2"] = c.accel_sigma_unit**2
+    prm["mag_noise"] = c.mag_noise
+    prm["mag_unit2"] = c.mag_sigma_unit**2
+    prm["g_norm"] = site.gravity
     if c.q_start is not None:
         q = np.asarray(c.q_start, dtype=np.float64)
         if q.shape != (4,):
             raise ValueError(f"initial.q_nb: expected shape (4,), found {q.shape}")
-        prm[R_QSTART : R_QSTART + 4] = q
+        prm["qstart"] = q
     if c.b0 is not None:
         b = np.asarray(c.b0, dtype=np.float64)
         if b.shape != (3,):
             raise ValueError(f"initial.gyro_bias_b: expected shape (3,), found {b.shape}")
-        prm[R_B0 : R_B0 + 3] = b
+        prm["b0"] = b
     s = np.zeros(N_S)
     s[S_TGNSS] = -np.inf
     s[S_TSTATE] = -np.inf  # no sample yet
     flags = np.zeros(N_FLAGS_ADD, dtype=np.int64)
     flags[core.L_FIRST : core.L_FIRST + core.N_SENSORS] = -1
     if site.mag_n is not None:
-        prm[R_SITE_FIELD : R_SITE_FIELD + 3] = site.mag_n
+        prm["site_field"] = site.mag_n
         norm = float(np.linalg.norm(site.mag_n))
         s[S_MAGNORM] = norm
         s[S_MAGREF : S_MAGREF + 3] = site.mag_n / norm
         flags[F_MAGREF] = 1
     if c.kind == KIND_UKF:
         wm, wc, spread = ut_weights(c.n, *c.ut)
-        prm[R_SPREAD] = spread
+        prm["spread"] = spread
     else:
         wm, wc = np.ones(1), np.ones(1)
     x = np.zeros(c.n)

@@ -76,15 +76,6 @@ from windahrs.core.layout import (
     MAG_3D,
     MAG_OFF,
     N_SENSORS,
-    R_ACC_LP,
-    R_GATE2_ACC,
-    R_GATE2_MAG,
-    R_GRAV,
-    R_MAG_SIGMA,
-    R_MAG_VAR,
-    R_NORM_GATE,
-    R_SB2,
-    R_SG2,
     S_FBAR,
     SENSOR_STREAMS,
     SENSORS,
@@ -293,7 +284,7 @@ def _propagate(prm, x, P, work, w0, w1, w2, dt):
         X[i, 0], X[i, 1], X[i, 2] = _grp_from_dq(d[0], d[1], d[2], d[3])
     _centre(X, _N, mean)
     _weighted_cov(X, _N, P)
-    _add_process_noise(prm[R_SG2], prm[R_SB2], dt, P)
+    _add_process_noise(prm["gyro_noise2"], prm["gyro_bias_noise2"], dt, P)
     d = _dq_from_grp(mean[0], mean[1], mean[2])
     q = _qmul(Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3], d[0], d[1], d[2], d[3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
@@ -382,11 +373,11 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
     var = accel_variance(cfg, prm, x)
     f_now = math.sqrt(fx * fx + fy * fy + fz * fz)  # the sample's own length (knows_gravity)
     if flags[S_FBAR] == 1:
-        fx, fy, fz = blend_mean(prm, x, _lowpass_gain(dt, prm[R_ACC_LP]), fx, fy, fz)
+        fx, fy, fz = blend_mean(prm, x, _lowpass_gain(dt, prm["accel_lowpass"]), fx, fy, fz)
     nu = work[U_NU]
-    g = prm[R_GRAV]
+    g = prm["gravity"]
     f_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
-    if abs(f_norm - g) > prm[R_NORM_GATE] * g:
+    if abs(f_norm - g) > prm["accel_norm_gate"] * g:
         nu[0], nu[1], nu[2] = np.nan, np.nan, np.nan
         _log(cfg, flags, inn, acc, nu, np.int64(INN_ACCEL), t, np.int64(3), np.nan, np.bool_(False))
         return
@@ -407,7 +398,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
     _predict_vector(work, -0.0, -0.0, -g)  # -g_n
     nu[0], nu[1], nu[2] = fx, fy, fz
     sensor, m = np.int64(INN_ACCEL), np.int64(3)
-    _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, prm[R_GATE2_ACC], False)
+    _update(cfg, x, flags, P, work, inn, acc, sensor, t, m, var, prm["gate_accel2"], False)
 
 
 @njit(inline="always", **_JIT)
@@ -429,15 +420,15 @@ def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
         _sigma(x, P, work)
         _predict_vector(work, rx, ry, rz)
         nu[0], nu[1], nu[2] = mx, my, mz
-        _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(3), prm[R_MAG_VAR], prm[R_GATE2_MAG], False)
+        _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(3), prm["mag_var"], prm["gate_mag2"], False)
         return
     # heading only, tilt-compensated with the current roll/pitch estimate (as [mekf])
     roll, pitch, _ = _euler(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     nu[0] = measured_heading(roll, pitch, mx, my, mz, rx, ry)
-    sigma = prm[R_MAG_SIGMA] / max(math.hypot(rx, ry), 1e-9)
+    sigma = prm["mag_sigma"] / max(math.hypot(rx, ry), 1e-9)
     _sigma(x, P, work)
     _predict_heading(work)
-    _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(1), sigma**2, prm[R_GATE2_MAG], True)
+    _update(cfg, x, flags, P, work, inn, acc, sensor, t, np.int64(1), sigma**2, prm["gate_mag2"], True)
 
 
 @njit(**_JIT)
