@@ -55,7 +55,7 @@ def _state(kind: str, params: EskfParams, rng: np.random.Generator):  # type: ig
     x[K.X_BM : K.X_BM + 3] = rng.normal(size=3) * 1e-6
     x[K.X_MAGN : K.X_MAGN + 3] = SITE.mag_n
     x[K.X_VGNSS : K.X_VGNSS + 3] = rng.normal(size=3) * 3 + [12.0, 0, 0]
-    n = int(st.cfg[K.C_N])
+    n = int(st.cfg["n"])
     st.P[:n, :n] = np.eye(n) * 0.01
     return st
 
@@ -65,7 +65,7 @@ def _inject(st, dx: np.ndarray):  # type: ignore[no-untyped-def]
     st2 = st._replace(x=st.x.copy(), work=st.work.copy(), sup=st.sup.copy(), flags=st.flags.copy())
     x, cfg = st2.x, st2.cfg
     x[K.X_Q : K.X_Q + 4] = quat_mul(x[K.X_Q : K.X_Q + 4], quat_exp(dx[0:3]))
-    for c_idx, x_idx in ((K.C_IV, K.X_V), (K.C_IBG, K.X_BG), (K.C_IW, K.X_W), (K.C_IBA, K.X_BA), (K.C_IBM, K.X_BM)):
+    for c_idx, x_idx in (("i_v", K.X_V), ("i_bg", K.X_BG), ("i_w", K.X_W), ("i_ba", K.X_BA), ("i_bm", K.X_BM)):
         i = int(cfg[c_idx])
         if i >= 0:
             x[x_idx : x_idx + 3] += dx[i : i + 3]
@@ -86,7 +86,7 @@ def _h_and_H(st, aid: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # t
         fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, np.r_[np.zeros(3), z, 0.0])
     else:
         tas, aoa, beta = 15.0, 0.05, -0.03
-        use_v = bool(cfg[K.C_IV] >= 0)
+        use_v = bool(cfg["i_v"] >= 0)
         _, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
         if aid == "air":
             fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, tas, ca, sa, cb, sb, use_v, 0.0)
@@ -99,10 +99,10 @@ def _h_and_H(st, aid: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # t
         z = {"air": x[K.X_VAIR : K.X_VAIR + 3].copy(), "tas": np.array([tas]), "sideslip": np.zeros(1),
              "aoa": np.array([aoa])}[aid]
     m = len(z)
-    dim = int(cfg[K.C_DIM])
+    dim = int(cfg["dim"])
     H = np.zeros((m, dim))
     # the support: the columns of row 0 of sup that the aid source wrote (the rest of H is 0)
-    nsup = {"gravity": 6 if cfg[K.C_IBA] >= 0 else 3, "mag": 6 if cfg[K.C_IBM] >= 0 else 3, "gnss": 3}
+    nsup = {"gravity": 6 if cfg["i_ba"] >= 0 else 3, "mag": 6 if cfg["i_bm"] >= 0 else 3, "gnss": 3}
     cols = sorted({int(c) for c in sup[0, : nsup.get(aid, 11)] if 0 <= c < dim})
     for c in cols:
         H[:, c] = work[K.W_H : K.W_H + m, c]

@@ -22,7 +22,7 @@ from windahrs.core.dense import (
 )
 from windahrs.core.kalman import _fuse, read_logs
 from windahrs.core.kernel import make_state as kernel_state
-from windahrs.core.layout import C_N, INN_ACCEL, INN_MAG, N_SENSORS, W_HQ, W_NU, W_R
+from windahrs.core.layout import INN_ACCEL, INN_MAG, N_SENSORS, W_HQ, W_NU, W_R
 from windahrs.core.predict import _normalise_add, _predict_add
 from windahrs.estimate import Estimate
 from windahrs.filters.additive import make_state
@@ -222,7 +222,7 @@ def test_normalisation_projects_the_covariance(state) -> None:
     # (w >= 0), P <- T P T^T with T = blkdiag(+-J, I), J = (I - u u^T)/|q| the Jacobian of
     # q/|q| (by finite differences), the sign that of the flip.
     st = state()
-    n = st.cfg[C_N]
+    n = st.cfg["n"]
     rng = np.random.default_rng(RNG_SEED + 9)
     q = rng.normal(size=4)
     q[0] = -abs(q[0])  # the sign flip to w >= 0

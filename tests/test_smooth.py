@@ -14,7 +14,7 @@ from scipy.linalg import expm
 import windahrs as wa
 from conftest import require_data
 from windahrs.core import smooth as S
-from windahrs.core.layout import C_OFF, INN_RESET
+from windahrs.core.layout import INN_RESET
 from windahrs.estimate import EstimatorWarning
 from windahrs.experiments.reproduce import MIN_WIND_NOISE
 from windahrs.filters.base import InitialState
@@ -148,7 +148,7 @@ def test_resets_break_the_chain() -> None:
     est = wa.estimator("mekf")
     run, rec = S.forward_record(est, flight, upside)  # (the warnings come with the Estimate)
     linked = S.backward(run.st.cfg, run.st.prm, rec.nom.copy(), rec.P.copy(), rec.aux, run.st.P.shape[0])
-    t_reset = run.st.inn[run.st.cfg[C_OFF + INN_RESET], 0]
+    t_reset = run.st.inn[run.st.cfg["log_off"][INN_RESET], 0]
     k = int(np.searchsorted(flight.imu.t, t_reset))
     assert not linked[k - 1] and linked[k + 5 : k + 100].all()
     with pytest.warns(EstimatorWarning):

@@ -24,7 +24,6 @@ import windahrs
 from windahrs.conventions import DEG
 from windahrs.core.kernel import make_state
 from windahrs.core.layout import (
-    C_OFF,
     INN_ACCEL,
     INN_MAG,
     L_CNT,
@@ -394,7 +393,7 @@ def test_update_equals_oracle(model: str) -> None:
         ok = _update(st.cfg, x, st.flags, Pk, work, st.inn, st.acc, np.int64(sensor), 1.5, np.int64(m), var, gate2,
                      angle)  # fmt: skip
         assert ok is accepted
-        row = int(st.cfg[C_OFF + sensor] + st.flags[L_CNT + sensor]) - 1  # the row just logged
+        row = int(st.cfg["log_off"][sensor] + st.flags[L_CNT + sensor]) - 1  # the row just logged
         assert st.inn[row, 0] == 1.5 and st.acc[row] == accepted
         assert st.inn[row, 4] == pytest.approx(nis_ref, rel=1e-10)
         np.testing.assert_allclose(st.inn[row, 1 : 1 + m], nu_ref, rtol=1e-12, atol=1e-15 * np.abs(z).max())

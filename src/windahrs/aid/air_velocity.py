@@ -15,8 +15,6 @@ from numba import njit
 
 from windahrs.core.layout import (
     _JIT_CORE,
-    C_IV,
-    C_IW,
     S_VAIR,
     W_H,
     X_Q,
@@ -42,7 +40,7 @@ def _air_rows(cfg, x, work, sup, use_state_v, g0, g1, g2, row):
     y1 = c[1] * dx + c[4] * dy + c[7] * dz
     y2 = c[2] * dx + c[5] * dy + c[8] * dz
     H = work[W_H : W_H + 3]
-    iv, iw = cfg[C_IV], cfg[C_IW]
+    iv, iw = cfg["i_v"], cfg["i_w"]
     H[row, 0] = g1 * y2 - g2 * y1
     H[row, 1] = g2 * y0 - g0 * y2
     H[row, 2] = g0 * y1 - g1 * y0

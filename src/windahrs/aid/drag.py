@@ -29,7 +29,6 @@ from windahrs.core.kalman import (
 )
 from windahrs.core.layout import (
     _JIT_CORE,
-    C_IBA,
     INN_DRAG,
     W_H,
     W_NU,
@@ -52,7 +51,7 @@ def fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     _, _, _, ns = _air_rows(cfg, x, work, sup[0], True, 0.0, d1, 0.0, np.int64(1))
     h0 = -mu * u0 - kx * u0 * abs(u0)
     h1 = -mu * u1 - ky * u1 * abs(u1)
-    iba = cfg[C_IBA]
+    iba = cfg["i_ba"]
     H = work[W_H : W_H + 3]
     if iba >= 0:
         h0, h1 = h0 + x[X_BA], h1 + x[X_BA + 1]

@@ -45,11 +45,6 @@ from windahrs.core.kalman import (
 )
 from windahrs.core.layout import (
     _JIT_CORE,
-    C_IBA,
-    C_IBM,
-    C_IV,
-    C_IW,
-    C_KIND,
     INN_GNSS,
     KIND_INS,
     S_AGNSS,
@@ -124,8 +119,8 @@ def remember_gnss(prm, x, flags, t, row):
 def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A GNSS velocity sample (finite) of an initialised filter: row[:3] m/s NED at t s,
     fused where velocity is a state ([ins-wind])."""
-    if cfg[C_KIND] == KIND_INS:
-        iv = cfg[C_IV]
+    if cfg["kind"] == KIND_INS:
+        iv = cfg["i_v"]
         H, R = work[W_H : W_H + 3], work[W_R : W_R + 3]
         tau = prm["gnss_timing_sigma"] if flags[S_AGNSS] == 1 else 0.0
         for k in range(3):
@@ -173,7 +168,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
     the sample row[:3] m/s NED at t s (spread gnss_sigma), the attitude's spread reopened (a
     tilt beyond 45 deg levelled), the biases restarted, the wind restarted from the next air
     sample, the heading turned to the next magnetometer sample; logged."""
-    iv = cfg[C_IV]
+    iv = cfg["i_v"]
     reopen(cfg, P, iv, prm["gnss_var"], prm["gnss_var"])
     dv2 = 0.0
     for a in range(3):
@@ -183,12 +178,12 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
         _level(prm, x)
     set_attitude_cov(cfg, prm, x, P, work)
     reset_gyro_bias(cfg, prm, x, P)
-    if cfg[C_IBA] >= 0:
-        restart(cfg, x, P, X_BA, cfg[C_IBA], prm["init_accel_bias_var"])
-    if cfg[C_IBM] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
-        restart(cfg, x, P, X_BM, cfg[C_IBM], prm["init_mag_bias_var"])
+    if cfg["i_ba"] >= 0:
+        restart(cfg, x, P, X_BA, cfg["i_ba"], prm["init_accel_bias_var"])
+    if cfg["i_bm"] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
+        restart(cfg, x, P, X_BM, cfg["i_bm"], prm["init_mag_bias_var"])
     flags[S_HEADLESS] = 1  # the heading from the next field sample (aid.mag.fuse_mag)
-    if cfg[C_IW] >= 0:
-        reopen(cfg, P, cfg[C_IW], prm["init_wind_var"], prm["init_wind_vertical_var"])
+    if cfg["i_w"] >= 0:
+        reopen(cfg, P, cfg["i_w"], prm["init_wind_var"], prm["init_wind_vertical_var"])
         flags[S_WPEND] = 1  # the wind from the next air sample, as at initialisation
     log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_GNSS), t, math.sqrt(dv2))

@@ -45,11 +45,6 @@ from windahrs.core.layout import (
     _JIT_CORE,
     ADD_COV,
     ADD_NONE,
-    C_ADD,
-    C_AVAR,
-    C_COMP,
-    C_IBA,
-    C_IBG,
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
@@ -197,7 +192,7 @@ def blend_mean(prm, x, a, fx, fy, fz):
 def accel_variance(cfg, prm, x):
     """The gravity measurement's variance per axis: accel_sigma^2, plus the accelerometer's
     noise measured on line (core.predict.track_accel_noise) with accel_noise_online."""
-    return prm["accel_var"] + x[X_AVAR] if cfg[C_AVAR] >= 1 else prm["accel_var"]
+    return prm["accel_var"] + x[X_AVAR] if cfg["accel_noise_online"] >= 1 else prm["accel_var"]
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -207,14 +202,14 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     gravity, ``h = C_bn (-g_n) (+ compensation) (+ b_a)``, ``H_att = [h_g]x``, R = accel_sigma^2 I,
     gated on ``| |f| - g | > accel_norm_gate g`` and on the innovation (gate_accel)."""
     fx, fy, fz = row[3], row[4], row[5]
-    if cfg[C_AVAR] >= 1 and dt > 0:  # the accelerometer's noise on line
+    if cfg["accel_noise_online"] >= 1 and dt > 0:  # the accelerometer's noise on line
         track_accel_noise(cfg, prm, x, dt)
     # the accelerometer as a gravity measurement (or its low-passed mean), gated on |f|
     nu = work[W_NU]
     g = prm["gravity"]
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     k0, k1, k2 = 0.0, 0.0, 0.0  # compensation acceleration, body
-    comp = cfg[C_COMP]
+    comp = cfg["accel_compensation"]
     has_k = False
     if comp == COMP_AIRSPEED and flags[S_VAIR] == 1:  # (w - bg) x V_air
         ux, uy, uz = row[0] - x[X_BG], row[1] - x[X_BG + 1], row[2] - x[X_BG + 2]
@@ -258,7 +253,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         return
     var = accel_variance(cfg, prm, x)
     kf = 1.0
-    if flags[S_FBAR] == 1 and cfg[C_ADD] == ADD_NONE and prm["accel_fuse_dt"] > 0:  # at accel_fuse_rate
+    if flags[S_FBAR] == 1 and cfg["add_form"] == ADD_NONE and prm["accel_fuse_dt"] > 0:  # at accel_fuse_rate
         tilt_var = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, c[6], c[7], c[8])  # (less the part about down)
         kf = samples_to_fuse(x, np.int64(X_NFUSE), np.int64(X_TGFUSE), t, prm["accel_fuse_dt"], 0.5 * dt,
                              tilt_var, var / (g * g))
@@ -270,14 +265,14 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         h0, h1, h2 = y0 + k0, y1 + k1, y2 + k2
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
-    ib = cfg[C_IBG]
-    if flags[S_FBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+    ib = cfg["i_bg"]
+    if flags[S_FBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg["add_form"] != ADD_COV:
         # the mean's samples were rotated into this body frame by the bias-corrected gyro:
         # a bias error db turned each by its integral over the sample's age, so the mean
         # reads y + [y]x (dtheta + J db), J = d mean / d b_g kept by the kernel (tau I at
         # rest, and rotated with the body): H_b = [y]x J
         nsup = lag_bias_rows(work, sup[0], x, np.int64(X_JLAG), ib, np.int64(3), nsup)
-    iba = cfg[C_IBA]
+    iba = cfg["i_ba"]
     if iba >= 0:  # (no accelerometer fusion in the INS; kept for the general model)
         h0, h1, h2 = h0 + x[X_BA], h1 + x[X_BA + 1], h2 + x[X_BA + 2]
         nsup = _bias_rows(work, sup[0], iba, nsup)

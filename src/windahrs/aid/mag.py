@@ -36,13 +36,6 @@ from windahrs.core.layout import (
     _JIT_CORE,
     ADD_COV,
     ADD_NONE,
-    C_ADD,
-    C_HVERT,
-    C_IBG,
-    C_IBM,
-    C_KIND,
-    C_MAG,
-    C_SITE_MAG,
     INN_MAG,
     KIND_INS,
     MAG_3D,
@@ -104,7 +97,7 @@ FUSE_RATE_PARAMS = ("mag_fuse_rate",)
 @njit(**_JIT_CORE)
 def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
     """The reference field m_n: the site's field, or the sample's with its horizontal part north."""
-    if cfg[C_SITE_MAG] == 1:
+    if cfg["site_mag_known"] == 1:
         for a in range(3):
             x[X_MAGN + a] = prm["site_mag"][a]
     else:
@@ -122,7 +115,7 @@ def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
 @njit(**_JIT_CORE)
 def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
     """The disturbance checks: the field to be fused fails the norm or dip check."""
-    if cfg[C_IBM] >= 0:
+    if cfg["i_bm"] >= 0:
         mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
     r_norm = math.sqrt(rx * rx + ry * ry + rz * rz)
     ng = prm["mag_norm_gate"]
@@ -163,13 +156,13 @@ def measured_heading(roll, pitch, mx, my, mz, rx, ry):
 def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A magnetometer sample (finite) of an initialised filter: row[:3] tesla, body, at t s."""
     mx, my, mz = row[0], row[1], row[2]
-    mode = cfg[C_MAG]
+    mode = cfg["mag_mode"]
     if mode == MAG_OFF:
         return
     rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
     if flags[S_HEADLESS] == 1:  # started without it (core.kernel.MAG_WAIT), or reset (aid.gnss_vel): its heading now
         flags[S_HEADLESS] = 0
-        if cfg[C_SITE_MAG] == 1:  # (else the reference was just taken from this sample)
+        if cfg["site_mag_known"] == 1:  # (else the reference was just taken from this sample)
             x[X_TOK + INN_MAG] = np.nan  # logged as out for NaN s: absent, not rejected
             _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, _heading_offset(cfg, x, mx, my, mz, rx, ry))
         return
@@ -201,7 +194,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         return
     kf = 1.0
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    if prm["mag_lowpass"] > 0 and cfg[C_ADD] == ADD_NONE and prm["mag_fuse_dt"] > 0:  # the mean at mag_fuse_rate
+    if prm["mag_lowpass"] > 0 and cfg["add_form"] == ADD_NONE and prm["mag_fuse_dt"] > 0:  # the mean at mag_fuse_rate
         kf = mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry)
         if kf == 0.0:  # (this sample is in the next fusion)
             return
@@ -212,7 +205,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         _vector_rows(work, sup[0], y0, y1, y2, prm["mag_var"] / kf)
         nsup = _mean_bias_rows(cfg, prm, x, flags, work, sup[0], np.int64(3), np.int64(3))
         h0, h1, h2 = y0, y1, y2
-        ibm = cfg[C_IBM]
+        ibm = cfg["i_bm"]
         if ibm >= 0:  # + bm, H_bm = I
             h0, h1, h2 = y0 + x[X_BM], y1 + x[X_BM + 1], y2 + x[X_BM + 2]
             nsup = _bias_rows(work, sup[0], ibm, nsup)
@@ -222,7 +215,7 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         per_sample_nis(cfg, flags, inn, sensor, kf)
         return
     sigma = prm["mag_sigma"] / max(math.hypot(rx, ry), 1e-9)
-    if cfg[C_HVERT] == 1:
+    if cfg["heading_vertical"] == 1:
         # the field's heading in the nav frame against the reference's, corrected about
         # the nav vertical only: H_att = third row of C_nb
         n0 = c[0] * mx + c[1] * my + c[2] * mz
@@ -255,7 +248,7 @@ def mag_samples_to_fuse(cfg, prm, x, P, t, dtm, c, mx, my, mz, rx, ry):
     attitude variance it measures, times the field's length squared, is at most
     DECIMATE_PRIOR_SHARE of a sample's noise variance: in 3-D the attitude across the field
     (across m), as heading the attitude about the vertical, against (mag_sigma / |m_n,h|)^2."""
-    if cfg[C_MAG] == MAG_3D:
+    if cfg["mag_mode"] == MAG_3D:
         mn2 = mx * mx + my * my + mz * mz
         mn = math.sqrt(mn2) if mn2 > 0 else 1.0
         across = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, mx / mn, my / mn, mz / mn)
@@ -273,8 +266,8 @@ def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
     just written; returns the support size. Called in 3-D fusion only, where the kernel
     keeps J (``core.kernel._rotate_lowpass``): on the heading-only model the columns took the
     field's changes from place to place into the vertical gyro bias (docs/RESULTS.md 18)."""
-    ib = cfg[C_IBG]
-    if flags[S_MBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg[C_ADD] != ADD_COV:
+    ib = cfg["i_bg"]
+    if flags[S_MBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg["add_form"] != ADD_COV:
         return lag_bias_rows(work, sup, x, np.int64(X_JMAG), ib, m, nsup)
     return nsup
 
@@ -290,7 +283,7 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
     d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
     if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
         accepted_at(x, sensor, t)
-    elif timed_out(prm, x, sensor, t) and cfg[C_KIND] != KIND_INS:
+    elif timed_out(prm, x, sensor, t) and cfg["kind"] != KIND_INS:
         _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
         return True
     return False
@@ -300,7 +293,7 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
 def _heading_offset(cfg, x, mx, my, mz, rx, ry):
     """The rotation about the nav vertical, rad, that turns the field sample m (body; less
     the hard iron when estimated) onto the reference's heading."""
-    if cfg[C_IBM] >= 0:
+    if cfg["i_bm"] >= 0:
         mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     n0 = c[0] * mx + c[1] * my + c[2] * mz

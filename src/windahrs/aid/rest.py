@@ -33,8 +33,6 @@ from numba import njit
 from windahrs.core.kalman import _bias_rows, _fuse
 from windahrs.core.layout import (
     _JIT_CORE,
-    C_IBG,
-    C_REST,
     INN_REST,
     REST_START,
     W_H,
@@ -85,7 +83,7 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     x[X_RN] += 1.0
     if not (dw2 < prm["rest_w2"] and df2 < prm["rest_f2"] and clip <= prm["rest_clip"]):
         x[X_TREST] = np.nan  # moving
-        if cfg[C_REST] == REST_START and x[X_TRFUSE] > -np.inf:
+        if cfg["rest"] == REST_START and x[X_TRFUSE] > -np.inf:
             x[X_RN] = -1.0  # the start's rest is over: no more rest updates
         return
     if math.isnan(x[X_TREST]):
@@ -94,7 +92,7 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         return
     x[X_TRFUSE] = t
     H, R, nu = work[W_H : W_H + 3], work[W_R : W_R + 3], work[W_NU]
-    ib = cfg[C_IBG]
+    ib = cfg["i_bg"]
     var = prm["rest_var"] + prm["gyro_noise2"] / (2.0 * tau)
     for k in range(3):
         H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0  # (the additive form reads the attitude's columns)

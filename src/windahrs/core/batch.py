@@ -48,7 +48,7 @@ from numba import njit, prange
 
 from windahrs.core import pool
 from windahrs.core.kernel import CompiledEstimator, PreparedRun, run_events
-from windahrs.core.layout import _JIT, C_OFF, I64, L_CNT, N_SENSORS, KernelState
+from windahrs.core.layout import _JIT, I64, L_CNT, N_SENSORS, KernelState
 from windahrs.core.smooth import no_smoothing
 from windahrs.estimate import Estimate
 from windahrs.filters.base import COV_RECORDS, CovRecord, InitialState, initial_per_flight
@@ -133,7 +133,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     acc = np.zeros(int(l_off[-1]), dtype=np.bool_)
     for i, s in enumerate(sts):
         for k in range(N_SENSORS):
-            o, c = int(s.cfg[C_OFF + k]), int(s.flags[L_CNT + k])
+            o, c = int(s.cfg["log_off"][k]), int(s.flags[L_CNT + k])
             inn[l_off[i] + o : l_off[i] + o + c] = s.inn[o : o + c]
             acc[l_off[i] + o : l_off[i] + o + c] = s.acc[o : o + c]
     e_off = _offsets([len(r.t_ev) for r in runs])

@@ -47,8 +47,6 @@ from numba import njit
 from windahrs.core.kalman import _log
 from windahrs.core.layout import (
     _JIT_CORE,
-    C_IV,
-    C_OFF,
     INN_IMU,
     L_CNT,
     S_CLIP,
@@ -111,7 +109,7 @@ def _catch_up(cfg, x, flags, dt, w, f):
         for a in range(3):
             x[X_WLAST + a] += x[X_PEND + a]
     if f:
-        if flags[S_INIT] == 1 and cfg[C_IV] >= 0:
+        if flags[S_INIT] == 1 and cfg["i_v"] >= 0:
             c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
             fx, fy, fz = x[X_PEND + 3] * dt, x[X_PEND + 4] * dt, x[X_PEND + 5] * dt
             x[X_V] += c[0] * fx + c[1] * fy + c[2] * fz
@@ -171,7 +169,7 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
         cw, cf = flags[S_NHELD] & 1 != 0 and dw2 > gw2, flags[S_NHELD] & 2 != 0 and df2 > gf2
         if cw or cf:
             _catch_up(cfg, x, flags, x[X_DTPEND], cw, cf)
-            inn[cfg[C_OFF + INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
+            inn[cfg["log_off"][INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
             dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
         dropw, dropf = flags[S_NHELD] & 1 != 0 and not cw, flags[S_NHELD] & 2 != 0 and not cf
         if (dropw or dropf) and flags[S_INIT] == 1:

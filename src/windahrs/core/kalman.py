@@ -27,16 +27,6 @@ from windahrs.core.layout import (
     ADD_ATT,
     ADD_COV,
     ADD_NONE,
-    C_ADD,
-    C_CAP,
-    C_IBA,
-    C_IBG,
-    C_IBM,
-    C_IV,
-    C_IW,
-    C_N,
-    C_OFF,
-    C_TILT,
     EVENT_LOGS,
     F64,
     I64,
@@ -89,12 +79,12 @@ from windahrs.estimate import Innovations
 def _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted):
     """Streamer._log: t, nu[:m] (NaN-padded to 3), nis, accepted."""
     c = flags[L_CNT + sensor]
-    if c >= cfg[C_CAP + sensor]:
+    if c >= cfg["log_cap"][sensor]:
         raise IndexError("innovation log full")
     if c == 0:
         flags[L_FIRST + sensor] = flags[S_SEQ]
         flags[S_SEQ] += 1
-    row = cfg[C_OFF + sensor] + c
+    row = cfg["log_off"][sensor] + c
     inn[row, 0] = t
     for i in range(3):
         inn[row, 1 + i] = nu[i] if i < m else np.nan
@@ -104,32 +94,32 @@ def _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted):
 
 
 
-def log_layout(cfg: I64, caps: I64) -> int:
+def log_layout(cfg: np.void, caps: I64) -> int:
     """Lay the logs out in cfg: caps (N_SENSORS,) rows for each sensor, one block after
     the other. Returns the rows in all."""
-    cfg[C_CAP : C_CAP + N_SENSORS] = caps
-    cfg[C_OFF : C_OFF + N_SENSORS] = np.concatenate([[0], np.cumsum(caps)[:-1]])
+    cfg["log_cap"] = caps
+    cfg["log_off"] = np.concatenate([[0], np.cumsum(caps)[:-1]])
     return int(caps.sum())
 
 
-def grown_logs(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) -> tuple[I64, F64, NDArray[np.bool_]]:
+def grown_logs(cfg: np.void, flags: I64, inn: F64, acc: NDArray[np.bool_]) -> tuple[np.void, F64, NDArray[np.bool_]]:
     """(cfg, inn, acc) with twice the rows for every full sensor log, the rows logged so
     far copied (new arrays; the arguments are left alone)."""
     cnt = flags[L_CNT : L_CNT + N_SENSORS]
-    caps = cfg[C_CAP : C_CAP + N_SENSORS].copy()
+    caps = cfg["log_cap"].copy()
     caps[cnt >= caps] *= 2
     cfg2 = cfg.copy()
     total = log_layout(cfg2, caps)
     inn2, acc2 = np.empty((total, 5)), np.zeros(total, dtype=np.bool_)
     for s in range(N_SENSORS):
-        o, c, o2 = int(cfg[C_OFF + s]), int(cnt[s]), int(cfg2[C_OFF + s])
+        o, c, o2 = int(cfg["log_off"][s]), int(cnt[s]), int(cfg2["log_off"][s])
         inn2[o2 : o2 + c] = inn[o : o + c]
         acc2[o2 : o2 + c] = acc[o : o + c]
     return cfg2, inn2, acc2
 
 
 def read_logs(
-    cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_], *, heading: bool = False
+    cfg: np.void, flags: I64, inn: F64, acc: NDArray[np.bool_], *, heading: bool = False
 ) -> dict[str, Innovations]:
     """The logs as Estimate innovations, keyed in the order sensors first logged (the reset
     log is not one: ``Estimate.resets``); heading: the magnetometer was fused as a heading
@@ -137,7 +127,7 @@ def read_logs(
     cnt, first = flags[L_CNT : L_CNT + N_SENSORS], flags[L_FIRST : L_FIRST + N_SENSORS]
     out: dict[str, Innovations] = {}
     for s in sorted((s for s in range(N_SENSORS) if cnt[s] > 0 and s not in EVENT_LOGS), key=lambda s: int(first[s])):
-        o, c = int(cfg[C_OFF + s]), int(cnt[s])
+        o, c = int(cfg["log_off"][s]), int(cnt[s])
         name = SENSORS[s]
         rows = 1 if name == "mag" and heading else SENSOR_ROWS[s]
         out[name] = Innovations(
@@ -149,10 +139,10 @@ def read_logs(
     return out
 
 
-def read_resets(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
+def read_resets(cfg: np.void, flags: I64, inn: F64) -> dict[str, F64]:
     """The reset log (windahrs.core.reset) as ``Estimate.resets``: per sensor key, (K, 3)
     rows [t s, size, how long the sensor had disagreed s]."""
-    o, c = int(cfg[C_OFF + INN_RESET]), int(flags[L_CNT + INN_RESET])
+    o, c = int(cfg["log_off"][INN_RESET]), int(flags[L_CNT + INN_RESET])
     rows = inn[o : o + c]
     out: dict[str, F64] = {}
     for s in np.unique(rows[:, 1]).astype(int):
@@ -161,21 +151,21 @@ def read_resets(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
     return out
 
 
-def read_held(cfg: I64, flags: I64, inn: F64) -> dict[str, F64]:
+def read_held(cfg: np.void, flags: I64, inn: F64) -> dict[str, F64]:
     """The IMU screen's log (windahrs.core.imu_screen) as ``Estimate.alerts["imu"]``: (K, 4)
     rows [t s, change of the angular rate rad/s, of the specific force m/s^2, outcome: 1
     beyond range, 2 a spike (not propagated), 3 motion (propagated one sample late)]; no key
     when no sample was held."""
-    o, c = int(cfg[C_OFF + INN_IMU]), int(flags[L_CNT + INN_IMU])
+    o, c = int(cfg["log_off"][INN_IMU]), int(flags[L_CNT + INN_IMU])
     rows = inn[o : o + c]
     return {"imu": np.column_stack([rows[:, :3], rows[:, 4]])} if c else {}
 
 
-def read_airspeed_scale(cfg: I64, flags: I64, inn: F64, acc: NDArray[np.bool_]) -> F64 | None:
+def read_airspeed_scale(cfg: np.void, flags: I64, inn: F64, acc: NDArray[np.bool_]) -> F64 | None:
     """The airspeed scale estimator's log (windahrs.aid.airspeed_scale) as
     ``Estimate.airspeed_scale``: (K, 5) rows [t s, scale, its standard deviation, airspeed
     innovation m/s, accepted]; None when it did not run."""
-    o, c = int(cfg[C_OFF + INN_ASPD]), int(flags[L_CNT + INN_ASPD])
+    o, c = int(cfg["log_off"][INN_ASPD]), int(flags[L_CNT + INN_ASPD])
     if c == 0:
         return None
     return np.column_stack([inn[o : o + c, :4], acc[o : o + c].astype(np.float64)])
@@ -226,7 +216,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     """The Kalman update of the error-state and additive EKFs: NIS, gate, log, Joseph update, injection.
 
     The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m] and H, by the form
-    cfg[C_ADD]: the error state and [ekf7], [ekf10] (ADD_NONE, ADD_ATT) give H =
+    cfg["add_form"]: the error state and [ekf7], [ekf10] (ADD_NONE, ADD_ATT) give H =
     work[W_H:W_H+m] on the error-state columns sups[0, :nsup] (the attitude columns 0..2
     always written), mapped here to the quaternion's four columns for the additive form;
     the paper's filters (ADD_COV) give it on the covariance's own columns, H =
@@ -240,10 +230,10 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     swapped: what updating both gave, for half the work), of more on whole rows, which the
     compiler vectorises; either way P stays exactly symmetric. Loops run over the n states,
     not P's zero padding."""
-    n = cfg[C_N]
+    n = cfg["n"]
     H, sup = work[W_H : W_H + 3], sups[0]
     Hm, cols, nc = H, sup, nsup
-    if cfg[C_ADD] == ADD_ATT:
+    if cfg["add_form"] == ADD_ATT:
         Hq = work[W_HQ : W_HQ + 3]
         cols = sups[1]
         q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
@@ -264,7 +254,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 for k in range(m):
                     Hq[k, c + 1] = H[k, c]
         Hm = Hq
-    elif cfg[C_ADD] == ADD_COV:
+    elif cfg["add_form"] == ADD_COV:
         Hm, cols = work[W_HQ : W_HQ + 3], sups[1]
     U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
     R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
@@ -321,7 +311,7 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1 + s20 * k2) - u0
             Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1 + s21 * k2) - u1
             Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
-        if cfg[C_TILT] == 1 and sensor == INN_ACCEL:
+        if cfg["tilt_only"] == 1 and sensor == INN_ACCEL:
             _tilt_only(x, Kt, Gt, dx, S, U, nu)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
@@ -366,8 +356,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             else:
                 for j in range(n):
                     P[i, j] = P[i, j] + (a0 * Gt[0, j] + b0 * Kt[0, j])
-    ib, iv, iw, iba = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
-    if cfg[C_ADD] != ADD_NONE:
+    ib, iv, iw, iba = cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"]
+    if cfg["add_form"] != ADD_NONE:
         if ib >= 0:
             if flags[S_FBAR] == 1:
                 _rebias_mean(x, X_FBAR, X_JLAG, dx[ib + 1], dx[ib + 2], dx[ib + 3])
@@ -397,8 +387,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 x[X_W + a] += dx[iw + a]
             if iba >= 0:
                 x[X_BA + a] += dx[iba + a]
-            if cfg[C_IBM] >= 0:
-                x[X_BM + a] += dx[cfg[C_IBM] + a]
+            if cfg["i_bm"] >= 0:
+                x[X_BM + a] += dx[cfg["i_bm"] + a]
     return True
 
 
@@ -485,7 +475,7 @@ def per_sample_nis(cfg, flags, inn, sensor, kf):
     """The NIS just logged for ``sensor`` (by a fusion that stood for kf samples, with R /
     kf: about kf times a sample's) divided by kf: the log keeps a sample's NIS."""
     if kf > 1.0:
-        inn[cfg[C_OFF + sensor] + flags[L_CNT + sensor] - 1, 4] /= kf
+        inn[cfg["log_off"][sensor] + flags[L_CNT + sensor] - 1, 4] /= kf
 
 
 @njit(inline="always", **_JIT_CORE)

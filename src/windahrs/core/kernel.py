@@ -66,35 +66,7 @@ from windahrs.core.layout import (
     AIR_AUTO,
     AIR_OFF,
     AIR_VECTOR,
-    C_ADD,
-    C_AIR,
-    C_ASC,
-    C_AVAR,
-    C_CAP,
-    C_COMP,
-    C_COV_EVERY,
-    C_DIM,
-    C_DRAG,
-    C_HVERT,
-    C_IBA,
-    C_IBG,
-    C_IBM,
-    C_INI,
-    C_INI_BG,
-    C_INI_V,
-    C_INI_W,
-    C_IV,
-    C_IW,
-    C_KIND,
-    C_MAG,
-    C_N,
-    C_REST,
-    C_SCHECK,
-    C_SITE_MAG,
-    C_SYN,
-    C_TILT,
-    C_WAIT_GNSS,
-    C_WAIT_MAG,
+    CFG,
     COMP_AIRSPEED,
     COMP_GNSS,
     COMP_NONE,
@@ -109,7 +81,6 @@ from windahrs.core.layout import (
     MAG_3D,
     MAG_HEADING,
     MAG_OFF,
-    N_CFG,
     N_FLAGS,
     N_SENSORS,
     N_WORK,
@@ -217,17 +188,17 @@ def _try_init(cfg, prm, x, flags, P, work):
     reference, the low-pass means. x[X_TIMU]: the time of the last IMU sample."""
     if flags[S_INIT] == 1 or flags[S_WIN] == 0:
         return
-    if cfg[C_INI] == 0 and x[X_TIMU] - x[X_TWIN0] < prm["init_window"]:
+    if cfg["init_given"] == 0 and x[X_TIMU] - x[X_TWIN0] < prm["init_window"]:
         return
-    headless = cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0
+    headless = cfg["wait_mag"] == 1 and flags[S_FMAG] == 0
     if headless and x[X_TIMU] - x[X_TWIN0] < MAG_WAIT:
         return
-    if cfg[C_WAIT_GNSS] == 1 and flags[S_FV] == 0:
+    if cfg["wait_gnss"] == 1 and flags[S_FV] == 0:
         return
     f0 = _initial_state(cfg, prm, x, flags, P, work)
     if flags[S_FMAG] == 1:
         _set_mag_reference(cfg, prm, x, flags, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2])
-    elif cfg[C_SITE_MAG] == 1:
+    elif cfg["site_mag_known"] == 1:
         _set_mag_reference(cfg, prm, x, flags, 0.0, 0.0, 0.0)
     if prm["accel_lowpass"] > 0:
         for a in range(3):
@@ -235,11 +206,11 @@ def _try_init(cfg, prm, x, flags, P, work):
         for a in range(9):
             x[X_JLAG + a] = 0.0
         flags[S_FBAR] = 1
-        if cfg[C_SCHECK] == 1:  # the start check's running mean (aid.gravity.start_check)
+        if cfg["start_check"] == 1:  # the start check's running mean (aid.gravity.start_check)
             for a in range(3):
                 x[X_RM + a] = x[f0 + a]
             x[X_NRM] = 1.0
-    flags[S_WPEND] = 1 if (cfg[C_IW] >= 0 and cfg[C_INI_W] == 0) else 0
+    flags[S_WPEND] = 1 if (cfg["i_w"] >= 0 and cfg["init_wind_given"] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
         x[X_TOK + s] = x[X_TIMU]
     flags[S_HEADLESS] = 1 if headless else 0
@@ -257,7 +228,7 @@ def _initial_state(cfg, prm, x, flags, P, work):
     specific force used. :func:`_try_init` starts from it, and :func:`record` writes it
     for the samples before the start (flagged not_initialised), so that no output is NaN."""
     f0 = X_FWIN if prm["init_window"] > 0 else X_FLAST  # the window's mean, or the last sample
-    if cfg[C_INI] == 1:
+    if cfg["init_given"] == 1:
         q = (prm["init_q"][0], prm["init_q"][1], prm["init_q"][2], prm["init_q"][3])
     elif flags[S_FLAST] == 0:  # no IMU sample yet (only NaN ones): level
         q = (1.0, 0.0, 0.0, 0.0)
@@ -265,22 +236,22 @@ def _initial_state(cfg, prm, x, flags, P, work):
         q = _triad(
             x[f0], x[f0 + 1], x[f0 + 2],
             flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
-            cfg[C_SITE_MAG] == 1, prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2],
+            cfg["site_mag_known"] == 1, prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2],
         )  # fmt: skip
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = q
-    iv, ib, iw, iba = cfg[C_IV], cfg[C_IBG], cfg[C_IW], cfg[C_IBA]
+    iv, ib, iw, iba = cfg["i_v"], cfg["i_bg"], cfg["i_w"], cfg["i_ba"]
     for a in range(3):
-        x[X_BG + a] = prm["init_bias"][a] if cfg[C_INI_BG] == 1 else 0.0
+        x[X_BG + a] = prm["init_bias"][a] if cfg["init_bias_given"] == 1 else 0.0
         if iv >= 0:
-            x[X_V + a] = prm["init_v"][a] if cfg[C_INI_V] == 1 else x[X_FV + a]
+            x[X_V + a] = prm["init_v"][a] if cfg["init_v_given"] == 1 else x[X_FV + a]
         if iw >= 0:
-            x[X_W + a] = prm["init_wind"][a] if cfg[C_INI_W] == 1 else 0.0
+            x[X_W + a] = prm["init_wind"][a] if cfg["init_wind_given"] == 1 else 0.0
         x[X_BA + a] = 0.0
         x[X_BM + a] = 0.0
     for i in range(P.shape[1]):
         for j in range(P.shape[1]):
             P[i, j] = 0.0
-    off = cfg[C_ADD]  # covariance index = error-state index + 1 after the quaternion
+    off = cfg["add_form"]  # covariance index = error-state index + 1 after the quaternion
     for a in range(3):
         P[ib + off + a, ib + off + a] = prm["init_bias_var"]
         if iv >= 0:
@@ -289,8 +260,8 @@ def _initial_state(cfg, prm, x, flags, P, work):
             P[iw + off + a, iw + off + a] = prm["init_wind_var"] if a < 2 else prm["init_wind_vertical_var"]
         if iba >= 0:
             P[iba + off + a, iba + off + a] = prm["init_accel_bias_var"]
-        if cfg[C_IBM] >= 0:
-            P[cfg[C_IBM] + off + a, cfg[C_IBM] + off + a] = prm["init_mag_bias_var"]
+        if cfg["i_bm"] >= 0:
+            P[cfg["i_bm"] + off + a, cfg["i_bm"] + off + a] = prm["init_mag_bias_var"]
     set_attitude_cov(cfg, prm, x, P, work)
     return f0
 
@@ -332,7 +303,7 @@ def _rotate_lowpass(cfg, prm, x, flags, e, dt):
         _rotate_into(c, x, np.int64(X_RM))
     if flags[S_MBAR] == 1:
         _rotate_into(c, x, np.int64(X_MBAR))
-        if prm["lowpass_bias"] > 0 and cfg[C_MAG] == MAG_3D:
+        if prm["lowpass_bias"] > 0 and cfg["mag_mode"] == MAG_3D:
             _age_rotated(c, x, np.int64(X_JMAG), dt)
 
 
@@ -429,7 +400,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         # (the low-passed means turn with the bias-corrected gyro as the attitude does: the
         # error-state prediction's own turn, Exp((w - b_g) dt), computed once; the
         # prediction does not change b_g)
-        if cfg[C_ADD] == 1:
+        if cfg["add_form"] == 1:
             e = corrected_turn(x, row, dt)
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
         else:
@@ -438,15 +409,15 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             _rotate_lowpass(cfg, prm, x, flags, e, dt)
         if dt > prm["unmeasured_motion_dt"]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
-        if cfg[C_REST] != REST_OFF:  # the gyro's bias, when the vehicle is at rest
+        if cfg["rest"] != REST_OFF:  # the gyro's bias, when the vehicle is at rest
             fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
-    if cfg[C_KIND] != KIND_INS:  # the INS takes the accelerometer as an input
+    if cfg["kind"] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
         return
     remember_specific_force(x, flags, fx, fy, fz, dt)
-    if cfg[C_AVAR] >= 1 and dt > 0:  # its noise, the input's density in the next prediction
+    if cfg["accel_noise_online"] >= 1 and dt > 0:  # its noise, the input's density in the next prediction
         track_accel_noise(cfg, prm, x, dt)
-    if cfg[C_DRAG] == 1:  # ... and may also read the drag in it
+    if cfg["drag"] == 1:  # ... and may also read the drag in it
         fuse_drag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
 
 
@@ -480,35 +451,36 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
     "auto") and (synthetic_sideslip) a zero sideslip. With airspeed_scale, the airspeed is
     first corrected by the scale estimated on line (:mod:`windahrs.aid.airspeed_scale`)."""
     vanes, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
-    kind = cfg[C_KIND]
-    if flags[S_INIT] == 0 or kind == KIND_MEKF or cfg[C_AIR] == AIR_OFF:
+    kind = cfg["kind"]
+    if flags[S_INIT] == 0 or kind == KIND_MEKF or cfg["air_mode"] == AIR_OFF:
         return
     extra = 0.0
     if kind == KIND_MEKF_AIR:  # GNSS velocity as an input
         if flags[S_VGNSS] == 0:
             return
         extra = prm["gnss_var"]
-    use_v = cfg[C_IV] >= 0
+    use_v = cfg["i_v"] >= 0
     extra_tas = extra  # the airspeed's added variance (the scale's too, when estimated)
-    if cfg[C_ASC] == 1:
-        bv = beta if cfg[C_AIR] != AIR_AIRSPEED else np.nan  # the sideslip vane's, when fused
-        tc, var_scale = airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, bv, cfg[C_SYN] == 1, use_v)
+    if cfg["airspeed_scale"] == 1:
+        bv = beta if cfg["air_mode"] != AIR_AIRSPEED else np.nan  # the sideslip vane's, when fused
+        syn = cfg["synthetic_sideslip"] == 1
+        tc, var_scale = airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, bv, syn, use_v)
         f = tc / tas if tas > 0 else 1.0
         x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = f * x[X_VAIR], f * x[X_VAIR + 1], f * x[X_VAIR + 2]
         tas = tc
         extra_tas = extra + var_scale
     if flags[S_WPEND] == 1:
         init_wind(x, flags, use_v, vanes)
-    mode = cfg[C_AIR]
+    mode = cfg["air_mode"]
     if mode == AIR_AUTO:
         mode = AIR_VECTOR if vanes else AIR_AIRSPEED
     if mode == AIR_VECTOR and vanes:
         fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra_tas)
         return
     fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra_tas)
-    if cfg[C_AIR] != AIR_AIRSPEED and np.isfinite(aoa):  # one vane: its angle of attack alone
+    if cfg["air_mode"] != AIR_AIRSPEED and np.isfinite(aoa):  # one vane: its angle of attack alone
         fuse_aoa(cfg, prm, x, flags, P, work, sup, inn, acc, t, aoa, tas, use_v, extra)
-    if cfg[C_SYN] == 1:  # at the state after the airspeed update
+    if cfg["synthetic_sideslip"] == 1:  # at the state after the airspeed update
         fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
 
 
@@ -517,24 +489,24 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     """The current state into row k of the outputs: q (N, 4), bias
     (N, 3), velocity and wind (N, 3) (written only when in the layout), tangent-space
     covariance (additive: T P T^T, T = blkdiag(2 Xi(q)^T, I)) into row k / e of out_cov
-    (ceil(N / e), d, d) when k is a multiple of e = cfg[C_COV_EVERY]: its leading d x d
-    block for d = out_cov.shape[1], the whole (cfg[C_DIM]), the attitude's (3) or none (0).
+    (ceil(N / e), d, d) when k is a multiple of e = cfg["cov_every"]: its leading d x d
+    block for d = out_cov.shape[1], the whole (cfg["dim"]), the attitude's (3) or none (0).
     Before the filter starts, the state and covariance it would start from
     (:func:`_initial_state`), with :data:`HEADING_UNKNOWN_VAR` about the vertical while it
     waits for the magnetometer: the rows are finite, and flagged not_initialised."""
     d = out_cov.shape[1]
-    iv, iw = cfg[C_IV], cfg[C_IW]
-    e = cfg[C_COV_EVERY]
+    iv, iw = cfg["i_v"], cfg["i_w"]
+    e = cfg["cov_every"]
     kc = k // e if k % e == 0 else -1
     if flags[S_INIT] == 0:  # the state it would start from now (x and P are free until then)
         _initial_state(cfg, prm, x, flags, P, work)
-        if cfg[C_WAIT_MAG] == 1 and flags[S_FMAG] == 0:  # waiting for the heading's sensor
+        if cfg["wait_mag"] == 1 and flags[S_FMAG] == 0:  # waiting for the heading's sensor
             attitude_cov_about_vertical(cfg, x, P, work, prm["init_att_var"], HEADING_UNKNOWN_VAR)
     # (the covariance first, then the vectors, loaded before they are stored: measurably
     # faster code)
     if kc < 0:
         pass
-    elif cfg[C_ADD] == 0:  # (around the caches, core.pool.stream_store3: never read back here)
+    elif cfg["add_form"] == 0:  # (around the caches, core.pool.stream_store3: never read back here)
         for i in range(d):
             for j in range(d):
                 stream_store3(out_cov, kc, i, j, P[i, j])
@@ -558,7 +530,7 @@ def _record_tangent_cov(cfg, x, P, work, k, out_cov):
         return
     Xi = work[W_M + 4 : W_M + 8]
     _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
-    n = cfg[C_N] if out_cov.shape[1] > 3 else 4
+    n = cfg["n"] if out_cov.shape[1] > 3 else 4
     for r in range(3):
         for j in range(4, n):
             v = (
@@ -703,44 +675,45 @@ def make_state(
                              f"found {L.blocks}")  # fmt: skip
     dim = L.dim
     n = dim + 1 if additive else dim
-    cfg = np.zeros(N_CFG, dtype=np.int64)
-    cfg[C_KIND] = _KINDS[kind]
-    cfg[C_ADD] = int(additive)
-    cfg[C_COMP] = _COMP[p.accel_compensation]
-    cfg[C_MAG] = _MAG[effective_mag_mode(p, site)]
-    cfg[C_HVERT] = int(p.heading_model == "vertical")
-    cfg[C_AIR] = _AIR[p.air_mode]
-    cfg[C_SYN] = int(p.synthetic_sideslip)
-    cfg[C_DRAG] = int(p.drag and kind == "ins-wind")
-    cfg[C_ASC] = int(p.airspeed_scale and kind != "mekf")
+    cfg = np.zeros(1, CFG)[0]
+    cfg["kind"] = _KINDS[kind]
+    cfg["add_form"] = int(additive)
+    cfg["accel_compensation"] = _COMP[p.accel_compensation]
+    cfg["mag_mode"] = _MAG[effective_mag_mode(p, site)]
+    cfg["heading_vertical"] = int(p.heading_model == "vertical")
+    cfg["air_mode"] = _AIR[p.air_mode]
+    cfg["synthetic_sideslip"] = int(p.synthetic_sideslip)
+    cfg["drag"] = int(p.drag and kind == "ins-wind")
+    cfg["airspeed_scale"] = int(p.airspeed_scale and kind != "mekf")
     # without a heading aid (the 6-D mode of the error-state filters that fuse gravity) the
     # gravity update corrects the tilt only (core.kalman._tilt_only), and rest detection
     # ("auto") measures the gyro bias, the vertical one included (aid.rest)
-    cfg[C_TILT] = int(kind != "ins-wind" and not additive
+    cfg["tilt_only"] = int(kind != "ins-wind" and not additive
                       and ("mag" not in has or effective_mag_mode(p, site) == "off"))
-    cfg[C_REST] = _REST[p.rest_detection]
+    cfg["rest"] = _REST[p.rest_detection]
     # the filters that fuse the mean specific force as gravity check its start (not the INS)
-    cfg[C_SCHECK] = int(p.start_check and kind != "ins-wind" and p.accel_lowpass > 0 and p.reset_timeout > 0)
+    cfg["start_check"] = int(p.start_check and kind != "ins-wind" and p.accel_lowpass > 0 and p.reset_timeout > 0)
     if p.rest_detection == "auto":
-        cfg[C_REST] = REST_ON if cfg[C_TILT] == 1 else REST_OFF
-    cfg[C_AVAR] = (2 if p.accel_noise_mean_start else 1) if (p.accel_noise_online and p.accel_lowpass > 0) else 0
+        cfg["rest"] = REST_ON if cfg["tilt_only"] == 1 else REST_OFF
+    online = p.accel_noise_online and p.accel_lowpass > 0
+    cfg["accel_noise_online"] = (2 if p.accel_noise_mean_start else 1) if online else 0
     if kind == "ins-wind":  # the INS takes the accelerometer as its input: its noise from the flight
-        cfg[C_AVAR] = 2 if p.accel_noise_measured else 0
-    cfg[C_WAIT_MAG] = int("mag" in has and p.mag_mode != "off" and ini is None)
-    cfg[C_WAIT_GNSS] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
-    cfg[C_INI] = int(ini is not None)
-    cfg[C_INI_BG] = int(ini is not None and ini.gyro_bias_b is not None)
-    cfg[C_INI_V] = int(ini is not None and ini.v_n is not None)
-    cfg[C_INI_W] = int(ini is not None and ini.wind_n is not None)
-    cfg[C_SITE_MAG] = int(site.mag_n is not None)
-    cfg[C_IV] = L.sl("v").start if L.has("v") else -1
-    cfg[C_IBG] = L.sl("bg").start
-    cfg[C_IW] = L.sl("wind").start if L.has("wind") else -1
-    cfg[C_IBA] = L.sl("ba").start if L.has("ba") else -1
-    cfg[C_IBM] = L.sl("bm").start if L.has("bm") else -1
-    cfg[C_DIM] = dim
-    cfg[C_COV_EVERY] = 1
-    cfg[C_N] = n
+        cfg["accel_noise_online"] = 2 if p.accel_noise_measured else 0
+    cfg["wait_mag"] = int("mag" in has and p.mag_mode != "off" and ini is None)
+    cfg["wait_gnss"] = int(kind == "ins-wind" and (ini is None or ini.v_n is None))
+    cfg["init_given"] = int(ini is not None)
+    cfg["init_bias_given"] = int(ini is not None and ini.gyro_bias_b is not None)
+    cfg["init_v_given"] = int(ini is not None and ini.v_n is not None)
+    cfg["init_wind_given"] = int(ini is not None and ini.wind_n is not None)
+    cfg["site_mag_known"] = int(site.mag_n is not None)
+    cfg["i_v"] = L.sl("v").start if L.has("v") else -1
+    cfg["i_bg"] = L.sl("bg").start
+    cfg["i_w"] = L.sl("wind").start if L.has("wind") else -1
+    cfg["i_ba"] = L.sl("ba").start if L.has("ba") else -1
+    cfg["i_bm"] = L.sl("bm").start if L.has("bm") else -1
+    cfg["dim"] = dim
+    cfg["cov_every"] = 1
+    cfg["n"] = n
     total = log_layout(cfg, np.asarray(caps, dtype=np.int64))
     n_pad = -(-n // PAD) * PAD  # the covariance's rows and columns, padded
 
@@ -769,7 +742,7 @@ def make_state(
     # initial spreads: the given initial state's, else the parameters'
     prm["init_att_var"] = sig(ini.sigma_att if ini else None, p.init_att) ** 2
     prm["init_yaw_var"] = p.init_yaw**2 if ini is None or ini.sigma_att is None else 0.0
-    if kind == "ins-wind" and p.init_yaw == 0 and ini is None and cfg[C_WAIT_MAG] == 0:
+    if kind == "ins-wind" and p.init_yaw == 0 and ini is None and cfg["wait_mag"] == 0:
         # an INS with nothing to give it a heading at the start (no magnetometer fused, and
         # no initial state): its heading is unknown, and only the GNSS accelerations turn it
         prm["init_yaw_var"] = math.pi**2
@@ -895,7 +868,7 @@ class CompiledStreamer(EventStreamer):
         self._no_sm = no_smoothing()
 
     def _step(self, kind: int, t: float) -> None:
-        if (self._st.flags[L_CNT : L_CNT + N_SENSORS] >= self._st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
+        if (self._st.flags[L_CNT : L_CNT + N_SENSORS] >= self._st.cfg["log_cap"]).any():
             self._st = _grow(self._st)  # an event logs at most one row per sensor
         run_events(self._st, self._t, self._kind, self._row, *self._none, False, self._no_sm)
 
@@ -925,7 +898,7 @@ class PreparedRun(NamedTuple):
     estimator's with what the flight declares), the error-state layout, a fresh
     KernelState, the merged events (t_ev (E,), kinds (E,), vals (E, 6)) and the outputs it
     records into: q (N, 4), bg (N, 3), v and w (N, 3), or (0, 3) when not in the layout,
-    cov (ceil(N / e), d, d) at every e-th sample (e = st.cfg[C_COV_EVERY]), d the layout's
+    cov (ceil(N / e), d, d) at every e-th sample (e = st.cfg["cov_every"]), d the layout's
     dimension, 3 (the attitude's block) or 0 (none)."""
 
     flight: Flight
@@ -1027,7 +1000,7 @@ class CompiledEstimator(Estimator):
         v = new((N, 3)) if L.has("v") else np.empty((0, 3))
         w = new((N, 3)) if L.has("wind") else np.empty((0, 3))
         every = cov_stride(N, d, cov_every)
-        st.cfg[C_COV_EVERY] = every
+        st.cfg["cov_every"] = every
         P = new((-(-N // every), d, d))
         return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)
 
@@ -1035,7 +1008,7 @@ class CompiledEstimator(Estimator):
         """The Estimate of a run that :func:`run_events` has been through (checked:
         :func:`~windahrs.filters.checks.checked`)."""
         st, L, flight = run.st, run.layout, run.flight
-        N, d, every = len(flight.imu.t), run.cov.shape[1], int(st.cfg[C_COV_EVERY])
+        N, d, every = len(flight.imu.t), run.cov.shape[1], int(st.cfg["cov_every"])
         skipped = st.flags[K_SKIP : K_SKIP + 4]
         return checked(Estimate(
             filter=self.label,

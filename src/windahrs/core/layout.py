@@ -1,11 +1,11 @@
 """The compiled filter's state records: what a running error-state or additive EKF carries
 between events, and the sensor registry (:data:`SENSORS`) the innovation logs are laid out
-from. The parameters are one named record (:data:`PRM`, a numpy structured scalar read as
-``prm["name"]`` in compiled code and in Python alike); the configuration, the state, the flags
-and the scratch space are still flat arrays named by the index constants below (the move of
-those to records is planned in docs/core.md, "Named records").
+from. The parameters and the configuration are named records (:data:`PRM`, :data:`CFG`:
+numpy structured scalars read as ``prm["name"]`` in compiled code and in Python alike); the
+state, the flags and the scratch space are still flat arrays named by the index constants
+below (the move of the state to a record: docs/records.md).
 
-:class:`KernelState` holds nine arrays: the configuration (ints) and parameters (floats)
+:class:`KernelState` holds nine fields: the configuration and parameters (two records)
 encoded once from the estimator's parameters, the nominal state with the samples it
 remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes: the
 additive filters' loops run over whole padded rows, the error-state update and prediction
@@ -49,7 +49,7 @@ COV_BUDGET = 1 << 24
 NMAX = 19
 
 KIND_MEKF, KIND_MEKF_AIR, KIND_INS = 0, 1, 2
-#: The form of the state, cfg[C_ADD]: the error state; the additive quaternion with the
+#: The form of the state, cfg["add_form"]: the error state; the additive quaternion with the
 #: aid sources' Jacobians on the error state (attitude columns mapped to the quaternion's
 #: by the one update, [ekf7], [ekf10]); the additive quaternion with the Jacobians given on
 #: the covariance's own columns (the paper's filters, whose Jacobians are on the
@@ -103,39 +103,48 @@ INN_IMU = SENSORS.index("imu")
 #: The logs that are not aid sources' innovations (read by windahrs.core.kalman.read_events).
 EVENT_LOGS = (INN_RESET, INN_IMU, INN_ASPD)
 
-# cfg: configuration (int64), fixed for a run (the log layout changes when a streamer grows).
-C_KIND = 0  # KIND_*
-C_ADD = 1  # ADD_*: 0 error state; 1 additive quaternion (ekf7/ekf10); 2 additive, H given on P's columns
-C_COMP = 2  # accelerometer compensation, COMP_* (mekf-air: always airspeed)
-C_MAG = 3  # MAG_*
-C_AIR = 4  # AIR_*
-C_SYN = 5  # synthetic sideslip
-C_WAIT_MAG = 6  # initialise only after a magnetometer sample
-C_WAIT_GNSS = 7  # initialise only after a GNSS sample
-C_INI = 8  # an InitialState was given
-C_INI_BG = 9  # ... with a gyro bias
-C_INI_V = 10  # ... with a velocity
-C_INI_W = 11  # ... with a wind
-C_SITE_MAG = 12  # the site's field is known
-C_IV = 13  # error-state index of the velocity block (-1: none)
-C_IBG = 14  # ... gyro bias
-C_IW = 15  # ... wind (-1: none)
-C_IBA = 16  # ... accelerometer bias (-1: none)
-C_DIM = 17  # error-state dimension
-C_N = 18  # covariance dimension (additive: DIM + 1)
-C_IBM = 19  # ... magnetometer bias (-1: none)
-C_HVERT = 20  # heading model: 1 "vertical", 0 "yaw"
-C_DRAG = 21  # 1: fuse the multirotor drag (aid.drag)
-C_AVAR = 22  # the on-line variance X_AVAR in the gravity measurement's noise: 0 no; 1 yes, low-passed
-#            from zero; 2 yes, started as the mean of the samples so far (accel_noise_mean_start)
-C_COV_EVERY = 23  # the covariance is recorded at every this-many-th IMU sample (kernel.record)
-C_ASC = 24  # 1: estimate the airspeed scale on line (windahrs.aid.airspeed_scale)
-C_REST = 25  # REST_*: fuse the gyro's bias at rest (windahrs.aid.rest): never, always, until the first motion
-C_TILT = 26  # 1: the gravity update corrects the tilt only (no heading aid: windahrs.core.kalman._fuse)
-C_SCHECK = 27  # 1: the gravity mean's start is checked against a running mean (windahrs.aid.gravity.start_check)
-C_OFF = 28  # (N_SENSORS,) first row of each sensor's log
-C_CAP = C_OFF + N_SENSORS  # (N_SENSORS,) rows of each sensor's log
-N_CFG = C_CAP + N_SENSORS
+#: cfg: the configuration, fixed for a run (the log layout changes when a streamer grows), as
+#: one named record of int64 fields, read as ``cfg["name"]`` (:data:`CFG`, as :data:`PRM`).
+#: (name, size, meaning)
+CFG_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("kind", 1, "KIND_*"),
+    ("add_form", 1, "ADD_*: 0 error state; 1 additive quaternion (ekf7/ekf10); 2 additive, H given on P's columns"),
+    ("accel_compensation", 1, "COMP_* (mekf-air: always airspeed)"),
+    ("mag_mode", 1, "MAG_*"),
+    ("air_mode", 1, "AIR_*"),
+    ("synthetic_sideslip", 1, "1: fuse the synthetic sideslip"),
+    ("wait_mag", 1, "1: initialise only after a magnetometer sample"),
+    ("wait_gnss", 1, "1: initialise only after a GNSS sample"),
+    ("init_given", 1, "1: an InitialState was given"),
+    ("init_bias_given", 1, "... with a gyro bias"),
+    ("init_v_given", 1, "... with a velocity"),
+    ("init_wind_given", 1, "... with a wind"),
+    ("site_mag_known", 1, "1: the site's field is known"),
+    ("i_v", 1, "error-state index of the velocity block (-1: none)"),
+    ("i_bg", 1, "... gyro bias"),
+    ("i_w", 1, "... wind (-1: none)"),
+    ("i_ba", 1, "... accelerometer bias (-1: none)"),
+    ("dim", 1, "error-state dimension"),
+    ("n", 1, "covariance dimension (additive: dim + 1)"),
+    ("i_bm", 1, "... magnetometer bias (-1: none)"),
+    ("heading_vertical", 1, "heading model: 1 \"vertical\", 0 \"yaw\""),
+    ("drag", 1, "1: fuse the multirotor drag (aid.drag)"),
+    (
+        "accel_noise_online",
+        1,
+        "the on-line variance X_AVAR in the gravity measurement's noise: 0 no; 1 yes, low-passed from zero;"
+        " 2 yes, started as the mean of the samples so far (accel_noise_mean_start)",
+    ),
+    ("cov_every", 1, "the covariance is recorded at every this-many-th IMU sample (kernel.record)"),
+    ("airspeed_scale", 1, "1: estimate the airspeed scale on line (aid.airspeed_scale)"),
+    ("rest", 1, "REST_*: fuse the gyro's bias at rest (aid.rest): never, always, until the first motion"),
+    ("tilt_only", 1, "1: the gravity update corrects the tilt only (no heading aid: core.kalman._fuse)"),
+    ("start_check", 1, "1: the gravity mean's start is checked against a running mean (aid.gravity.start_check)"),
+    ("log_off", N_SENSORS, "first row of each sensor's log"),
+    ("log_cap", N_SENSORS, "rows of each sensor's log"),
+)
+
+
 
 #: prm: the parameters, fixed for a run, as one named record: a numpy structured scalar
 #: (``np.zeros(1, PRM)[0]``), read as ``prm["name"]`` in compiled code and in Python alike
@@ -143,7 +152,7 @@ N_CFG = C_CAP + N_SENSORS
 #: docs/core.md "Named records"). Filled once by core.kernel.make_state from the estimator's
 #: parameters (filters.params.EskfParams, whose names the fields keep; "2" ends a square,
 #: "_var" a variance), grouped by the part of the filter that reads them. The paper's family
-#: extends it (windahrs.filters.additive.ADD_PRM). (name, size, meaning)
+#: has fields of its own in it (PAPER_PRM_FIELDS below). (name, size, meaning)
 PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
     # process model (core.predict)
     ("gyro_noise2", 1, "gyro_noise^2, (rad/s)^2/Hz"),
@@ -222,12 +231,47 @@ PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
 )
 
 
-def record_dtype(fields: tuple[tuple[str, int, str], ...]) -> np.dtype[Any]:
-    """The structured dtype of (name, size, description) float64 fields (size 1: a scalar)."""
-    return np.dtype([(f, np.float64) if n == 1 else (f, np.float64, (n,)) for f, n, _ in fields])
+def record_dtype(fields: tuple[tuple[str, int, str], ...], kind: type = np.float64) -> np.dtype[Any]:
+    """The structured dtype of (name, size, description) fields of one ``kind`` (size 1: a scalar)."""
+    return np.dtype([(f, kind) if n == 1 else (f, kind, (n,)) for f, n, _ in fields])
 
 
-PRM = record_dtype(PRM_FIELDS)
+#: The paper's family (windahrs.filters.additive: paper, paper-nowind, ekf, ukf) has fields of
+#: its own in the same records: one record type for every compiled filter, so that the
+#: functions they share (core.kalman._fuse, core.predict._predict_add, ...) compile once, not
+#: once per record type (measured: the paper's filter's cold compile 52 s with one type, 76 s
+#: with two). Its process noise is the core's gyro_noise2 and gyro_bias_noise2.
+PAPER_PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("p0_var", 1, "paper: initial variance per quaternion parameter"),
+    ("att0_var", 1, "initial attitude variance per axis, rad^2"),
+    ("bg0_var", 1, "initial gyro-bias variance per axis"),
+    ("q_var", 1, "paper: process variance per quaternion parameter per step"),
+    ("paper_acc_var", 1, "paper: accelerometer variance per component"),
+    ("paper_mag_var", 1, "paper: magnetometer variance per component"),
+    ("air_var", 1, "paper: air-flow variance per component"),
+    ("gnss_age", 1, "paper: oldest GNSS velocity the air row uses, s"),
+    ("acc_noise", 1, "accelerometer white-noise density"),
+    ("acc_unit2", 1, "extra variance of the normalised accelerometer"),
+    ("mag_noise", 1, "magnetometer noise per sample, T"),
+    ("mag_unit2", 1, "extra variance of the normalised magnetometer"),
+    ("g_norm", 1, "|g|, m/s^2"),
+    ("spread", 1, "UKF: n + lambda"),
+    ("site_field", 3, "the site's field, or 0"),
+    ("qstart", 4, "fixed initial attitude"),
+    ("b0", 3, "initial gyro bias"),
+)
+
+PAPER_CFG_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("paper_kind", 1, "KIND_PAPER, KIND_EKF or KIND_UKF"),
+    ("has_mag", 1, "1: the flight has a magnetometer"),
+    ("qstart_given", 1, "1: a fixed initial attitude (qstart)"),
+    ("use_air", 1, "1: fuse the air-flow row"),
+    ("p0_iso", 1, "1: the paper's isotropic initial covariance per quaternion parameter"),
+)
+
+
+PRM = record_dtype(PRM_FIELDS + PAPER_PRM_FIELDS)
+CFG = record_dtype(CFG_FIELDS + PAPER_CFG_FIELDS, np.int64)
 
 # x: nominal state and remembered samples (float64).
 X_Q = 0  # (4,)
@@ -345,7 +389,7 @@ class KernelState(NamedTuple):
     """Everything a compiled filter carries between events (arrays, mutated in place);
     the index constants of this module name their entries."""
 
-    cfg: I64  # (N_CFG,) C_*
+    cfg: np.void  # CFG record: cfg["name"]
     prm: np.void  # PRM record: prm["name"]
     x: F64  # (N_X,) X_*
     flags: I64  # (N_FLAGS,) S_*, L_*, K_*

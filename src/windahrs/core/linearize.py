@@ -177,10 +177,10 @@ class Linearization:
         """The magnetometer (aid.mag) in the params' mode: 3-D, H (3, dim), R (3, 3) tesla^2
         = mag_sigma^2 I; heading, H (1, dim), R (1, 1) rad^2."""
         st = self.st
-        if st.cfg[K.C_MAG] == K.MAG_OFF or st.flags[K.S_MAGN] == 0:
+        if st.cfg["mag_mode"] == K.MAG_OFF or st.flags[K.S_MAGN] == 0:
             raise ValueError("mag: expected params.mag_mode other than 'off' and a site with mag_n")
         self._begin()
-        m = 3 if st.cfg[K.C_MAG] == K.MAG_3D else 1
+        m = 3 if st.cfg["mag_mode"] == K.MAG_3D else 1
         self._row[:3] = st.x[K.X_MAGN : K.X_MAGN + 3]  # (any sample: the innovation is not used)
         fuse_mag(*st, 0.0, self._row)
         return self._out(m)

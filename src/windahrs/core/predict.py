@@ -18,14 +18,6 @@ from numba import njit
 from windahrs.core.layout import (
     _JIT_CORE,
     _JIT_FMA,
-    C_ADD,
-    C_AVAR,
-    C_IBA,
-    C_IBG,
-    C_IBM,
-    C_IV,
-    C_IW,
-    C_N,
     W_DX,
     W_M,
     W_T,
@@ -95,13 +87,13 @@ def track_accel_noise(cfg, prm, x, dt):
     (x[X_DF], kept by the kernel): (f_k - f_k-1) / sqrt(2) has the variance of the
     sample-to-sample noise (vibration, aliased rotor harmonics), while the smooth motion of
     the vehicle barely enters it at IMU rates; low-passed over accel_lowpass (else
-    NOISE_TAU) into x[X_AVAR], per axis (m/s^2)^2 per sample. cfg[C_AVAR] 2: VQF's filter
+    NOISE_TAU) into x[X_AVAR], per axis (m/s^2)^2 per sample. cfg["accel_noise_online"] 2: VQF's filter
     start, the mean of the samples so far until the low-pass's own gain takes over, so that
     the first seconds are weighed by the noise measured, not by a variance growing from zero.
     Read by the gravity aid source (its R) and the INS's prediction (its input's density)."""
     d0, d1, d2 = x[X_DF], x[X_DF + 1], x[X_DF + 2]
     gain = steady_gain(x, np.int64(X_NGAIN), dt, prm["accel_lowpass"] if prm["accel_lowpass"] > 0 else NOISE_TAU)
-    if cfg[C_AVAR] == 2:
+    if cfg["accel_noise_online"] == 2:
         x[X_NAVAR] += 1.0
         gain = max(gain, 1.0 / x[X_NAVAR])
     x[X_AVAR] += gain * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
@@ -113,7 +105,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     rows and columns of P change before Q is added (layout: att 0..2, v 3..5). The 3x3
     blocks of Phi live in local scalars. Returns the step's turn Exp((w_m - b_g) dt) (the
     kernel turns its low-passed means with it)."""
-    n, ib, iv, iw, iba = cfg[C_N], cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA]
+    n, ib, iv, iw, iba = cfg["n"], cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"]
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
     e, sh = _qexp_half(wx * dt, wy * dt, wz * dt)
@@ -260,7 +252,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     qab = -sb2 * dt**2 / 2.0
     qbb = sb2 * dt
     sa2 = prm["accel_noise2"]
-    if iv >= 0 and cfg[C_AVAR] >= 1:  # the INS input's density at least the noise measured
+    if iv >= 0 and cfg["accel_noise_online"] >= 1:  # the INS input's density at least the noise measured
         sa2 = max(sa2, x[X_AVAR] * dt)  # (a per-sample variance: density^2 = var * step)
     for k in range(3):
         P[k, k] += qaa
@@ -271,8 +263,8 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             P[iv + k, iv + k] += sa2 * dt
         if iba >= 0:
             P[iba + k, iba + k] += prm["accel_bias_noise2"] * dt
-        if cfg[C_IBM] >= 0:
-            P[cfg[C_IBM] + k, cfg[C_IBM] + k] += prm["mag_bias_noise2"] * dt
+        if cfg["i_bm"] >= 0:
+            P[cfg["i_bm"] + k, cfg["i_bm"] + k] += prm["mag_bias_noise2"] * dt
     if iw >= 0:
         P[iw, iw] += prm["wind_noise2"] * dt
         P[iw + 1, iw + 1] += prm["wind_noise2"] * dt
@@ -285,10 +277,10 @@ def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
     """The additive filters' normalisation: q <- q/|q| (w >= 0), P <- J P J^T with
     J = blkdiag(+-(I - u u^T)/|q|, I), u = q/|q| (the sign of the flip to w >= 0 in J:
     the quaternion's covariance with the other states changes sign), the quaternion block
-    symmetrised. (q0..q3): the quaternion before; P (n, n), n = cfg[C_N], the quaternion
+    symmetrised. (q0..q3): the quaternion before; P (n, n), n = cfg["n"], the quaternion
     in its first four rows; in place."""
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
-    n = cfg[C_N]
+    n = cfg["n"]
     nq = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     u = work[W_DX]  # (free here: any correction was applied before)
     u[0], u[1], u[2], u[3] = q0 / nq, q1 / nq, q2 / nq, q3 / nq
@@ -325,13 +317,13 @@ def _normalise_add(cfg, x, P, work, q0, q1, q2, q3):
 @njit(inline="always", **_JIT_FMA)
 def _noise_add(cfg, prm, P, Xi, dt):
     """SPEC 2.3's discrete process noise of the additive state ``[q; b_g (; W)]`` added to
-    P (n, n), n = cfg[C_N]: ``(sg2 dt/4 + sb2 dt^3/12) Xi Xi^T`` on the quaternion,
+    P (n, n), n = cfg["n"]: ``(sg2 dt/4 + sb2 dt^3/12) Xi Xi^T`` on the quaternion,
     ``-sb2 dt^2/4 Xi`` with the gyro bias, ``sb2 dt I`` on it, the wind's random walk;
-    Xi (4, 3) = Xi(q_k). A state without gyro bias (cfg[C_IBG] < 0, [ekf]) has the
+    Xi (4, 3) = Xi(q_k). A state without gyro bias (cfg["i_bg"] < 0, [ekf]) has the
     quaternion block alone (sb2 = 0). Shared by :func:`_predict_add` and the additive UKF."""
     sg2, sb2 = prm["gyro_noise2"], prm["gyro_bias_noise2"]
-    ib = cfg[C_IBG] + 1 if cfg[C_IBG] >= 0 else -1
-    iw = cfg[C_IW] + 1 if cfg[C_IW] >= 0 else -1
+    ib = cfg["i_bg"] + 1 if cfg["i_bg"] >= 0 else -1
+    iw = cfg["i_w"] + 1 if cfg["i_w"] >= 0 else -1
     cqq = sg2 * dt / 4.0 + sb2 * dt**3 / 12.0
     cqb = -sb2 * dt**2 / 4.0
     for r in range(4):
@@ -355,12 +347,12 @@ def _predict_add(cfg, prm, x, P, work, wmx, wmy, wmz, dt):
     """The additive prediction (SPEC 2.3) of [ekf7], [ekf10] and [ekf]: the exact transition
     ``q_k = Phi(dtheta) q``, ``dtheta = (w_m - b) dt``, F = [[Phi, -(dt/2) Xi(q_k) J_r], [0, I]],
     Q of :func:`_noise_add`, then the normalisation. Without a gyro-bias state
-    (cfg[C_IBG] < 0: [ekf], the 4-state EKF) dtheta = w_m dt and F = Phi."""
+    (cfg["i_bg"] < 0: [ekf], the 4-state EKF) dtheta = w_m dt and F = Phi."""
     M, X, Xi = work[W_M : W_M + 4], work[W_X : W_X + 8], work[W_M + 4 : W_M + 8]
     Jr, K = work[W_T : W_T + 3, 0:3], work[W_T + 3 : W_T + 6, 0:3]
     Fqb = work[W_T + 6 : W_T + 10, 0:3]  # 4x3 (borrows a row of the next matrix)
-    n = cfg[C_N]
-    ib = cfg[C_IBG] + 1 if cfg[C_IBG] >= 0 else -1
+    n = cfg["n"]
+    ib = cfg["i_bg"] + 1 if cfg["i_bg"] >= 0 else -1
     dx, dy, dz = wmx * dt, wmy * dt, wmz * dt
     if ib > 0:
         dx, dy, dz = (wmx - x[X_BG]) * dt, (wmy - x[X_BG + 1]) * dt, (wmz - x[X_BG + 2]) * dt
@@ -463,7 +455,7 @@ def add_unmeasured_motion(cfg, x, P, work, dt):
     d0 = held_sample_variance(x[X_DW], dt)
     d1 = held_sample_variance(x[X_DW + 1], dt)
     d2 = held_sample_variance(x[X_DW + 2], dt)
-    if cfg[C_ADD] == 1:
+    if cfg["add_form"] == 1:
         Xi = work[W_M + 4 : W_M + 8]
         _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
         for r in range(4):
@@ -473,7 +465,7 @@ def add_unmeasured_motion(cfg, x, P, work, dt):
     P[0, 0] += d0
     P[1, 1] += d1
     P[2, 2] += d2
-    iv = cfg[C_IV]
+    iv = cfg["i_v"]
     if iv >= 0:
         C = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
         d0 = held_sample_variance(x[X_DF], dt)

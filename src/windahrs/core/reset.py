@@ -24,10 +24,6 @@ from numba import njit
 from windahrs.core.kalman import _log
 from windahrs.core.layout import (
     _JIT_CORE,
-    C_ADD,
-    C_IBG,
-    C_N,
-    C_SITE_MAG,
     INN_MAG,
     INN_RESET,
     S_MAGN,
@@ -73,7 +69,7 @@ def log_reset(cfg, flags, inn, acc, work, x, sensor, t, size):
 @njit(**_JIT_CORE)
 def clear_rows(cfg, P, i0, k):
     """Zero the k rows and columns of P from covariance index i0 (before setting their spread)."""
-    n = cfg[C_N]
+    n = cfg["n"]
     for i in range(i0, i0 + k):
         for j in range(n):
             P[i, j] = 0.0
@@ -85,7 +81,7 @@ def reopen(cfg, P, i0, var, var_last):
     """The 3 error states from error-state index i0 made uncorrelated with spread var
     (the third var_last: a vertical wind held at zero has 0); additive form: covariance
     index i0 + 1."""
-    j0 = i0 + cfg[C_ADD]
+    j0 = i0 + cfg["add_form"]
     clear_rows(cfg, P, j0, 3)
     P[j0, j0], P[j0 + 1, j0 + 1], P[j0 + 2, j0 + 2] = var, var, var_last
 
@@ -104,7 +100,7 @@ def set_attitude_cov(cfg, prm, x, P, work):
     if prm["init_yaw_var"] > 0.0:
         _set_attitude_cov_yaw(cfg, prm, x, P, work)
         return
-    if cfg[C_ADD] == 1:
+    if cfg["add_form"] == 1:
         clear_rows(cfg, P, 0, 4)
         Xi = work[W_M + 4 : W_M + 8]
         _xi_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], Xi)
@@ -136,7 +132,7 @@ def attitude_cov_about_vertical(cfg, x, P, work, var, var_yaw):
     d = (2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), w * w - qx * qx - qy * qy + qz * qz)
     # the 3x3 spread var I + dv d d^T, entry by entry (nothing allocated: the core runs
     # without numba's reference counting, layout._JIT_CORE)
-    if cfg[C_ADD] == 1:
+    if cfg["add_form"] == 1:
         clear_rows(cfg, P, 0, 4)
         Xi = work[W_M + 4 : W_M + 8]
         _xi_into(w, qx, qy, qz, Xi)
@@ -158,7 +154,7 @@ def attitude_cov_about_vertical(cfg, x, P, work, var, var_yaw):
 def reset_gyro_bias(cfg, prm, x, P):
     """The gyro bias to zero with its initial spread: a bias learnt while the attitude was
     lost is not to be trusted."""
-    restart(cfg, x, P, X_BG, cfg[C_IBG], prm["init_bias_var"])
+    restart(cfg, x, P, X_BG, cfg["i_bg"], prm["init_bias_var"])
 
 
 @njit(**_JIT_CORE)
@@ -180,7 +176,7 @@ def retake_heading(cfg, prm, x, flags, t):
     Estimate.warnings() says as "taken for the heading ... after a reset" (not as a field
     off the state for reset_timeout, which nothing measured)."""
     x[X_TOK + INN_MAG] = -np.inf
-    if cfg[C_SITE_MAG] == 0:
+    if cfg["site_mag_known"] == 0:
         flags[S_MAGN] = 0
 
 

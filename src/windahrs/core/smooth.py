@@ -97,14 +97,6 @@ from numba import njit
 from windahrs.core.imu_screen import CLIP_SAMPLES
 from windahrs.core.layout import (
     _JIT,
-    C_ADD,
-    C_COV_EVERY,
-    C_IBA,
-    C_IBG,
-    C_IBM,
-    C_IV,
-    C_IW,
-    C_N,
     F64,
     INN_IMU,
     INN_RESET,
@@ -313,7 +305,7 @@ def backward(cfg, prm, nom, Pr, aux, n_pad):
     become the smoothed nominal state and covariance. Returns (N,) bool: whether sample k
     was smoothed from k + 1 (False: the forward estimate, a chain break)."""
     N, n = nom.shape[0], Pr.shape[1]
-    ib, iv, iw, iba, ibm = cfg[C_IBG], cfg[C_IV], cfg[C_IW], cfg[C_IBA], cfg[C_IBM]
+    ib, iv, iw, iba, ibm = cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"], cfg["i_bm"]
     na = 6 if iv >= 0 else 3  # the rows of Phi that are not the identity's
     work = np.zeros((N_WORK, max(n_pad, NMAX)))
     xa, xb = np.zeros(N_X), np.zeros(N_X)
@@ -678,7 +670,7 @@ def _smoothed_estimate(est: Any, run: Any, nom: F64, P: F64, ok: NDArray[np.bool
     if run.w.shape[0]:
         run.w[ok] = nom[ok, N_W : N_W + 3]
     P[~ok] = np.nan
-    run.st.cfg[C_COV_EVERY] = 1
+    run.st.cfg["cov_every"] = 1
     out: Estimate = est.finish(run._replace(cov=P))
     return dataclasses.replace(out, filter=name, meta={**out.meta, "smoother": method})
 
@@ -692,7 +684,7 @@ def forward_record(est: Any, flight: Flight, initial: InitialState | None = None
 
     run = est.prepare(flight, initial, cov="none", cov_every=1)  # (the outputs: 13 floats a sample)
     st, N, dim = run.st, len(flight.imu.t), run.layout.dim
-    if st.cfg[C_ADD] != 0 or st.cfg[C_N] != dim:
+    if st.cfg["add_form"] != 0 or st.cfg["n"] != dim:
         raise ValueError(f"smoothing {est.label!r}: not an error-state filter")
     need = smooth_bytes(N, dim)
     if need > SMOOTH_BUDGET:

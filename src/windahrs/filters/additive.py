@@ -55,7 +55,6 @@ from windahrs.core.dense import (
 from windahrs.core.events import sample_ok
 from windahrs.core.kalman import _fuse, _log, grown_logs, log_layout, read_logs
 from windahrs.core.layout import (
-    C_N,
     INN_ACCEL,
     INN_AIR,
     INN_MAG,
@@ -128,35 +127,9 @@ MIN_AIR_SPEED = 0.5
 #: Reasons a sample was not fused, in the order of the counters.
 UNFUSED = ("mag_before_imu", "air_before_init", "air_no_gnss", "air_slow")
 
-# The arrays extend the core's (core.layout); the names below are this family's own and
-# differ from the core's, whose slots before them keep their meaning.
-# cfg (int64): fixed for a run; after the core's fields (core.layout: C_N, C_ADD = ADD_COV,
-# no error-state blocks, the log layout)
-C_PAPER_KIND, C_HAS_MAG, C_QSTART, C_USE_AIR, C_P0_ISO = range(core.N_CFG, core.N_CFG + 5)
-N_CFG_ADD = core.N_CFG + 5
-#: This family's parameters, after the core's (whose fields keep their meaning: the process
-#: noise of core.predict's additive model, gyro_noise2 and gyro_bias_noise2, from the paper's
-#: gyro_noise and gyro_bias_rw; the rest 0).
-ADD_PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
-    ("p0_var", 1, "paper: initial variance per quaternion parameter"),
-    ("att0_var", 1, "initial attitude variance per axis, rad^2"),
-    ("bg0_var", 1, "initial gyro-bias variance per axis"),
-    ("q_var", 1, "paper: process variance per quaternion parameter per step"),
-    ("paper_acc_var", 1, "paper: accelerometer variance per component"),
-    ("paper_mag_var", 1, "paper: magnetometer variance per component"),
-    ("air_var", 1, "paper: air-flow variance per component"),
-    ("gnss_age", 1, "paper: oldest GNSS velocity the air row uses, s"),
-    ("acc_noise", 1, "accelerometer white-noise density"),
-    ("acc_unit2", 1, "extra variance of the normalised accelerometer"),
-    ("mag_noise", 1, "magnetometer noise per sample, T"),
-    ("mag_unit2", 1, "extra variance of the normalised magnetometer"),
-    ("g_norm", 1, "|g|, m/s^2"),
-    ("spread", 1, "UKF: n + lambda"),
-    ("site_field", 3, "the site's field, or 0"),
-    ("qstart", 4, "fixed initial attitude"),
-    ("b0", 3, "initial gyro bias"),
-)
-ADD_PRM = core.record_dtype(core.PRM_FIELDS + ADD_PRM_FIELDS)
+# This family's parameters and configuration are fields of the core's records (core.layout:
+# PAPER_PRM_FIELDS, PAPER_CFG_FIELDS), so that the core's functions it shares compile once.
+# Its flags extend the core's array (names of its own, after the core's slots).
 # s (float64): the remembered samples
 S_TIMU, S_TSTATE, S_DT = 0, 1, 2
 S_F = 3  # (3,) last specific force
@@ -175,14 +148,14 @@ _UP_N = np.array([0.0, 0.0, -1.0])  # conventions.UP_N: a resting accelerometer'
 
 
 class KernelState(NamedTuple):
-    """Everything a running filter needs, in arrays: cfg (N_CFG_ADD,) int64, prm (an ADD_PRM record),
+    """Everything a running filter needs, in arrays: cfg (a core.layout.CFG record), prm (a core.layout.PRM record),
     s (N_S,) remembered samples, flags (N_FLAGS_ADD,) int64, x (n,), P (n, n), wm and wc
     (2n+1,) unscented weights (UKF; (1,) otherwise), and as in core.layout.KernelState:
     work (N_WORK, NMAX) scratch rows, sup (2, NMAX) the columns of H (row 1: all n),
     inn (L, 5) innovation log rows [t, nu (3), nis], acc (L,) accepted."""
 
-    cfg: I64
-    prm: F64
+    cfg: np.void
+    prm: np.void
     s: F64
     flags: I64
     x: F64
@@ -231,11 +204,11 @@ def triad(f_b, mag_b, use_mag, mag_n, use_ref):
 def _start(cfg, prm, flags, x, P, q_raw):
     """Initial state and covariance at the attitude q_raw (4,)."""
     q = _qnormalize(q_raw)
-    n = cfg[C_N]
+    n = cfg["n"]
     for i in range(n):
         for j in range(n):
             P[i, j] = 0.0
-    if cfg[C_PAPER_KIND] == KIND_PAPER and cfg[C_P0_ISO] == 1:
+    if cfg["paper_kind"] == KIND_PAPER and cfg["p0_iso"] == 1:
         for i in range(4):
             P[i, i] = prm["p0_var"]
     else:
@@ -265,7 +238,7 @@ def _predict(cfg, prm, x, P, wm, wc, work, w_b, dt):
     without a gyro-bias state, the core's additive prediction (``core.predict._predict_add``,
     [ekf7]'s). [ukf]: the sigma points through ``q * Exp((w - b) dt)``, SPEC 2.3's Q
     (``core.predict._noise_add``)."""
-    kind = cfg[C_PAPER_KIND]
+    kind = cfg["paper_kind"]
     if kind == KIND_PAPER:
         # The paper's filter has no bias state: the raw gyro drives eq. 6.
         Phi = transition_picard4(w_b * dt)
@@ -335,7 +308,7 @@ def _update_vector(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, sensor
     columns ``sup[1, :4]``) and no gate (these filters fuse every sample: the gate at
     infinity accepts every finite innovation), then its normalisation. The UKF: the
     unscented update, the normalisation, the log row (accepted)."""
-    if cfg[C_PAPER_KIND] == KIND_UKF:
+    if cfg["paper_kind"] == KIND_UKF:
         S = sigma_points(x, P, prm["spread"])
         Y = np.empty((S.shape[0], 3))
         for p in range(S.shape[0]):
@@ -371,16 +344,16 @@ def step_imu(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, w_b, f_b)
     s[S_TSTATE] = t
     if first:
         # The first sample only initialises: its rate belongs to the interval before it.
-        if cfg[C_QSTART] == 1:
+        if cfg["qstart_given"] == 1:
             _start(cfg, prm, flags, x, P, prm["qstart"])
-        elif cfg[C_HAS_MAG] == 0:
+        elif cfg["has_mag"] == 0:
             _start(cfg, prm, flags, x, P, triad(f_b, f_b, False, f_b, False))
         return
     if flags[F_READY] == 0:
         return  # TRIAD still waits for its magnetometer sample
     s[S_DT] = dt
     _predict(cfg, prm, x, P, wm, wc, work, w_b, dt)
-    if cfg[C_PAPER_KIND] == KIND_PAPER:
+    if cfg["paper_kind"] == KIND_PAPER:
         var = prm["paper_acc_var"]
     else:
         # Per-sample noise sigma_c / sqrt(dt) (Kalibr), divided by |f| = g for the unit vector.
@@ -417,7 +390,7 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, mag_b):
         q0 = triad(f_b, mag_b, True, site, _norm3(site) > 0.0)
         _start(cfg, prm, flags, x, P, q0)
         return  # this sample made the initial attitude; fusing it again would reuse it
-    if cfg[C_PAPER_KIND] == KIND_PAPER:
+    if cfg["paper_kind"] == KIND_PAPER:
         var = prm["paper_mag_var"]
     else:
         r = prm["mag_noise"] / s[S_MAGNORM]
@@ -440,7 +413,7 @@ def step_air(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, aoa, beta
     """Air data at t s: the air-flow direction from the vanes (aoa, beta rad) against
     ``u = (V_n - W_n)/|V_n - W_n|``, V_n the latest GNSS velocity, wind_n (3,) the
     provider's wind (SPEC 3.4.3)."""
-    if cfg[C_USE_AIR] == 0:
+    if cfg["use_air"] == 0:
         return
     if not (math.isfinite(aoa) and math.isfinite(beta)):
         flags[K_SKIP + 3] += 1
@@ -477,7 +450,7 @@ def record(cfg, s, flags, x, P, k, out_q, out_bg, out_cov):
     else:
         out_q[k] = 0.0
         out_q[k, 0] = 1.0
-    kind = cfg[C_PAPER_KIND]
+    kind = cfg["paper_kind"]
     if kind == KIND_PAPER:
         out_cov[k] = P
         return
@@ -561,22 +534,22 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     """A fresh KernelState for the filter c at the site; has: the streams that will be fed;
     caps: innovation log rows by sensor (core.layout's INN_ACCEL, INN_MAG, INN_AIR; at
     most one per event of its stream)."""
-    cfg = np.zeros(N_CFG_ADD, dtype=np.int64)
+    cfg = np.zeros(1, core.CFG)[0]
     # the core's fields: the covariance, the form of H, no error-state blocks to inject into
-    cfg[C_N] = c.n
-    cfg[core.C_ADD] = core.ADD_COV
-    cfg[core.C_IV] = cfg[core.C_IW] = cfg[core.C_IBA] = cfg[core.C_IBM] = -1
-    cfg[core.C_IBG] = 3 if c.n == 7 else -1  # the UKF's gyro bias: covariance rows 4..6
+    cfg["n"] = c.n
+    cfg["add_form"] = core.ADD_COV
+    cfg["i_v"] = cfg["i_w"] = cfg["i_ba"] = cfg["i_bm"] = -1
+    cfg["i_bg"] = 3 if c.n == 7 else -1  # the UKF's gyro bias: covariance rows 4..6
     rows = np.zeros(core.N_SENSORS, dtype=np.int64)
     for sensor, cap in caps.items():
         rows[sensor] = cap
     total = log_layout(cfg, rows)
-    cfg[C_PAPER_KIND] = c.kind
-    cfg[C_HAS_MAG] = int("mag" in has)
-    cfg[C_QSTART] = int(c.q_start is not None)
-    cfg[C_USE_AIR] = int(c.use_air)
-    cfg[C_P0_ISO] = int(c.p0_iso)
-    prm = np.zeros(1, ADD_PRM)[0]
+    cfg["paper_kind"] = c.kind
+    cfg["has_mag"] = int("mag" in has)
+    cfg["qstart_given"] = int(c.q_start is not None)
+    cfg["use_air"] = int(c.use_air)
+    cfg["p0_iso"] = int(c.p0_iso)
+    prm = np.zeros(1, core.PRM)[0]
     prm["p0_var"] = c.p0_var
     prm["att0_var"] = c.att0_var
     prm["bg0_var"] = c.bg0_var
@@ -681,7 +654,7 @@ class AdditiveStreamer(EventStreamer):
     def _step(self, kind: int, t: float) -> None:
         st = self._st
         cnt = st.flags[core.L_CNT : core.L_CNT + core.N_SENSORS]
-        if (cnt >= st.cfg[core.C_CAP : core.C_CAP + core.N_SENSORS]).any():
+        if (cnt >= st.cfg["log_cap"]).any():
             cfg, inn, acc = grown_logs(st.cfg, st.flags, st.inn, st.acc)  # an event logs at most one row
             self._st = st = st._replace(cfg=cfg, inn=inn, acc=acc)
         run_events(st, self._t, self._kind, self._row, self._q, self._bg, self._cov, False)

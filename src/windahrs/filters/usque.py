@@ -66,9 +66,6 @@ from windahrs.core.kernel import (
 )
 from windahrs.core.layout import (
     _JIT,
-    C_AVAR,
-    C_CAP,
-    C_MAG,
     INN_ACCEL,
     INN_MAG,
     K_SKIP,
@@ -368,7 +365,7 @@ def _step_imu(cfg, prm, x, flags, P, work, inn, acc, t, row):
         if flags[S_FBAR] == 1:
             _rotate_lowpass(cfg, prm, x, flags, corrected_turn(x, row, dt), dt)
         _propagate(prm, x, P, work, row[0], row[1], row[2], dt)
-        if cfg[C_AVAR] >= 1:
+        if cfg["accel_noise_online"] >= 1:
             track_accel_noise(cfg, prm, x, dt)
     var = accel_variance(cfg, prm, x)
     f_now = math.sqrt(fx * fx + fy * fy + fz * fz)  # the sample's own length (knows_gravity)
@@ -408,7 +405,7 @@ def _step_mag(cfg, prm, x, flags, P, work, inn, acc, t, row):
     mx, my, mz = row[0], row[1], row[2]
     if not mag_ready(cfg, prm, x, flags, P, work, row):
         return
-    mode = cfg[C_MAG]
+    mode = cfg["mag_mode"]
     if mode == MAG_OFF:
         return
     rx, ry, rz = mag_reference(cfg, prm, x, flags, mx, my, mz)
@@ -483,7 +480,7 @@ class UsqueStreamer(CompiledStreamer):
 
     def _step(self, kind: int, t: float) -> None:
         st = self._st
-        if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg[C_CAP : C_CAP + N_SENSORS]).any():
+        if (st.flags[L_CNT : L_CNT + N_SENSORS] >= st.cfg["log_cap"]).any():
             self._st = st = _grow(st)  # an event logs at most one row per sensor
         run_usque(st, self._t, self._kind, self._row, self._none[0], self._none[1], self._none[2], self._none[4], False)
 
