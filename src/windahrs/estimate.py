@@ -90,7 +90,8 @@ class Innovations:
         from windahrs.flags import absent_after  # (flags reads Estimates: imported here)
 
         d = np.diff(self.t)
-        w = np.minimum(np.append(d, np.median(d)), absent_after(self.t))
+        period = float(np.median(d))  # (once: absent_after takes it)
+        w = np.minimum(np.append(d, period), absent_after(self.t, period=period))
         total = float(w.sum())
         return float(np.dot(w, self.accepted) / total) if total > 0 else float(np.mean(self.accepted))
 

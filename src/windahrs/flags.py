@@ -123,10 +123,12 @@ def flag_names(bits: int | np.integer) -> list[str]:
     return [name for name, (b, _) in FLAGS.items() if int(bits) >> b & 1]
 
 
-def absent_after(t: F64) -> float:
-    """How long a stream with sample times ``t`` may go without a sample before it is absent, s."""
-    dt = np.diff(t)
-    period = float(np.median(dt)) if len(dt) else 0.0
+def absent_after(t: F64, *, period: float | None = None) -> float:
+    """How long a stream with sample times ``t`` may go without a sample before it is absent, s;
+    period: the median of ``diff(t)`` when the caller has it (not computed again)."""
+    if period is None:
+        dt = np.diff(t)
+        period = float(np.median(dt)) if len(dt) else 0.0
     return max(ABSENT_PERIODS * period, ABSENT_MIN_S)
 
 
