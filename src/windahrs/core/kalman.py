@@ -42,6 +42,7 @@ from windahrs.core.layout import (
     S_SEQ,
     SENSOR_ROWS,
     SENSORS,
+    TRIANGLE_N,
     W_DX,
     W_G,
     W_H,
@@ -390,12 +391,6 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             if cfg["i_bm"] >= 0:
                 x[X_BM + a] += dx[cfg["i_bm"] + a]
     return True
-
-
-#: Covariances up to this size are updated on one triangle, mirrored (scalar code, half the
-#: entries: [mekf]'s 6 states); larger ones on whole rows, which the compiler vectorises
-#: ([ins-wind]'s 15: the triangle's rows of varying length were 20 % slower there).
-TRIANGLE_N = 8
 
 
 @njit(inline="always", **_JIT_CORE)

@@ -8,9 +8,10 @@ below (the move of the state to a record: docs/records.md).
 :class:`KernelState` holds nine fields: the configuration and parameters (two records)
 encoded once from the estimator's parameters, the nominal state with the samples it
 remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes: the
-additive filters' loops run over whole padded rows, the error-state update and prediction
-over the n states), scratch space and the innovation logs. Helpers take
-the arrays they need, not the KernelState: numba reference-counts every array taken out of a tuple.
+additive filters' loops and the error-state prediction's rows of Phi P of more than
+TRIANGLE_N states run over whole padded rows, the error-state update over the n states),
+scratch space and the innovation logs. Helpers take the arrays they need, not the
+KernelState: numba reference-counts every array taken out of a tuple.
 """
 
 from __future__ import annotations
@@ -47,6 +48,13 @@ COV_BUDGET = 1 << 24
 #: Width of the scratch rows: the largest covariance (ins-wind with accelerometer and
 #: magnetometer bias: 18; ekf10: 10) plus one.
 NMAX = 19
+
+#: Covariances up to this size are updated on one triangle, mirrored (scalar code, half the
+#: entries: [mekf]'s 6 states; core.kalman._fuse); larger ones on whole rows, which the
+#: compiler vectorises ([ins-wind]'s 15: the triangle's rows of varying length were 20 %
+#: slower there), and the prediction's rows of Phi P run over the padded width
+#: (core.predict._predict_es).
+TRIANGLE_N = 8
 
 KIND_MEKF, KIND_MEKF_AIR, KIND_INS = 0, 1, 2
 #: The form of the state, cfg["add_form"]: the error state; the additive quaternion with the
@@ -140,6 +148,7 @@ CFG_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("rest", 1, "REST_*: fuse the gyro's bias at rest (aid.rest): never, always, until the first motion"),
     ("tilt_only", 1, "1: the gravity update corrects the tilt only (no heading aid: core.kalman._fuse)"),
     ("start_check", 1, "1: the gravity mean's start is checked against a running mean (aid.gravity.start_check)"),
+    ("rows", 1, "the columns of the prediction's rows of Phi P (kernel.make_state; predict._predict_es)"),
     ("log_off", N_SENSORS, "first row of each sensor's log"),
     ("log_cap", N_SENSORS, "rows of each sensor's log"),
 )

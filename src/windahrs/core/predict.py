@@ -107,6 +107,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     kernel turns its low-passed means with it)."""
     n, ib, iv, iw, iba = cfg["n"], cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"]
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
+    w = cfg["rows"]  # the columns of M's rows (below)
     wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
     e, sh = _qexp_half(wx * dt, wy * dt, wz * dt)
     q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
@@ -129,9 +130,11 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     r00, r01, r02 = -dt + c22 * s00, c21 * -wz + c22 * xy, c21 * wy + c22 * xz
     r10, r11, r12 = c21 * wz + c22 * xy, -dt + c22 * s11, c21 * -wx + c22 * yz
     r20, r21, r22 = c21 * -wy + c22 * xz, c21 * wx + c22 * yz, -dt + c22 * s22
-    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg], the n columns. One
-    # output row per loop keeps LLVM's runtime alias checks few enough to vectorise.
-    for j in range(n):
+    # M[0:3] = attitude rows of Phi P = phi11 P[att] + phi12 P[bg]. One output row per loop
+    # keeps LLVM's runtime alias checks few enough to vectorise. Each runs over w columns
+    # (cfg["rows"], core.kernel.make_state), P's padded width for a large covariance: its
+    # padding columns are zero, so are M's there, never read.
+    for j in range(w):
         M[0, j] = (
             p00 * P[0, j]
             + p01 * P[1, j]
@@ -140,7 +143,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r01 * P[ib + 1, j]
             + (r02 * P[ib + 2, j])
         )
-    for j in range(n):
+    for j in range(w):
         M[1, j] = (
             p10 * P[0, j]
             + p11 * P[1, j]
@@ -149,7 +152,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
             + r11 * P[ib + 1, j]
             + (r12 * P[ib + 2, j])
         )
-    for j in range(n):
+    for j in range(w):
         M[2, j] = (
             p20 * P[0, j]
             + p21 * P[1, j]
@@ -190,26 +193,26 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         d20, d21, d22 = -C[6] * dt, -C[7] * dt, -C[8] * dt
         # M[3:6] = velocity rows of Phi P = P[v] + CF M[0:3] (+ Cdt P[ba])
         if iba >= 0:
-            for j in range(n):
+            for j in range(w):
                 M[3, j] = (
                     P[iv, j]
                     + (f00 * M[0, j] + f01 * M[1, j] + f02 * M[2, j])
                     + (d00 * P[iba, j] + d01 * P[iba + 1, j] + d02 * P[iba + 2, j])
                 )
-            for j in range(n):
+            for j in range(w):
                 M[4, j] = (
                     P[iv + 1, j]
                     + (f10 * M[0, j] + f11 * M[1, j] + f12 * M[2, j])
                     + (d10 * P[iba, j] + d11 * P[iba + 1, j] + d12 * P[iba + 2, j])
                 )
-            for j in range(n):
+            for j in range(w):
                 M[5, j] = (
                     P[iv + 2, j]
                     + (f20 * M[0, j] + f21 * M[1, j] + f22 * M[2, j])
                     + (d20 * P[iba, j] + d21 * P[iba + 1, j] + d22 * P[iba + 2, j])
                 )
         else:
-            for j in range(n):
+            for j in range(w):
                 m0, m1, m2 = M[0, j], M[1, j], M[2, j]
                 M[3, j] = P[iv, j] + (f00 * m0 + f01 * m1 + f02 * m2)
                 M[4, j] = P[iv + 1, j] + (f10 * m0 + f11 * m1 + f12 * m2)
