@@ -10,19 +10,32 @@ from typing import Any
 import numpy as np
 
 
-def ulog_bytes(n: int = 400, *, second_mag: bool = False) -> bytes:
+def ulog_bytes(
+    n: int = 400, *, second_mag: bool = False, decl_deg: float | None = None,
+    mag_bias_ga: tuple[float, float, float] | None = None, mag_bias_id: int = 7, prime_mag_id: int = 7,
+) -> bytes:
     """A small PX4 ULog (format version 1): IMU at 200 Hz, magnetometer, attitude, airspeed,
     GPS velocity and wind, laid out as the ULog spec says (header, flag bits, info, parameter,
     formats, add-logged and data messages). second_mag: a second vehicle_magnetometer
-    instance (multi_id 1, message id 6) reading (0.1, 0.0, 0.5) gauss."""
+    instance (multi_id 1, message id 6) reading (0.1, 0.0, 0.5) gauss. decl_deg: an
+    EKF2_MAG_DECL parameter (degrees). mag_bias_ga: EKF2's saved magnetometer bias
+    (EKF2_MAGBIAS_X/Y/Z, gauss) for the device EKF2_MAGBIAS_ID, the prime magnetometer
+    being CAL_MAG_PRIME."""
     out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 1_000_000))
 
     def msg(kind: str, payload: bytes) -> None:
         out.extend(struct.pack("<HB", len(payload), ord(kind)) + payload)
 
     msg("B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
-    for kind, key, value in (("I", b"char[7] sys_name", b"windsim"),
-                             ("P", b"float EKF2_GYR_NOISE", struct.pack("<f", 0.015))):
+    info = [("I", b"char[7] sys_name", b"windsim"), ("P", b"float EKF2_GYR_NOISE", struct.pack("<f", 0.015))]
+    if decl_deg is not None:
+        info.append(("P", b"float EKF2_MAG_DECL", struct.pack("<f", decl_deg)))
+    if mag_bias_ga is not None:
+        info += [("P", f"float EKF2_MAGBIAS_{a}".encode(), struct.pack("<f", b))
+                 for a, b in zip("XYZ", mag_bias_ga, strict=True)]
+        info += [("P", b"int32_t EKF2_MAGBIAS_ID", struct.pack("<i", mag_bias_id)),
+                 ("P", b"int32_t CAL_MAG_PRIME", struct.pack("<i", prime_mag_id))]
+    for kind, key, value in info:
         msg(kind, bytes([len(key)]) + key + value)
     formats = {
         "sensor_combined": "uint64_t timestamp;float[3] gyro_rad;float[3] accelerometer_m_s2;",
@@ -58,7 +71,7 @@ def ulog_bytes(n: int = 400, *, second_mag: bool = False) -> bytes:
     return bytes(out)
 
 
-def dataflash_bytes(n: int = 200) -> bytes:
+def dataflash_bytes(n: int = 200, *, decl_rad: float | None = None) -> bytes:
     """A small binary ArduPilot DataFlash log: FMT messages (the documented 89-byte message
     0x80), then PARM, IMU, MAG, GPS, ARSP, ATT, XKQ and XKF2 rows."""
     specs = {  # name: (struct of the fields after the 3-byte header, columns)
@@ -84,6 +97,8 @@ def dataflash_bytes(n: int = 200) -> bytes:
         put(0x80, fmt_layout, 64 + i, struct.calcsize(layout) + 3, name.encode(), chars.encode(),
             cols.encode())
     put(ids["PARM"], specs["PARM"][0], 100, b"EK3_GYRO_P_NSE", 0.015)
+    if decl_rad is not None:
+        put(ids["PARM"], specs["PARM"][0], 100, b"COMPASS_DEC", decl_rad)
     for k in range(n):
         t = 5_000_000 + 10_000 * k
         put(ids["IMU"], specs["IMU"][0], t, 0, 0.1, -0.2, 0.3, 0.5, -0.25, -9.7)

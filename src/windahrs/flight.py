@@ -378,17 +378,30 @@ class Reference:
             _set(self, "mask", m)
 
 
+#: How far (rad) a declination given with ``mag_n`` may be from the field's own: 0.1 deg,
+#: a rounding of a declination quoted to a tenth of a degree (as NOAA's calculator does).
+DECLINATION_TOL = float(np.radians(0.1))
+
+
 @dataclass(frozen=True)
 class Site:
     """Where the flight happened.
 
     gravity: m/s^2 (magnitude; the vector is [0, 0, gravity] in NED).
     mag_n: (3,) Earth's magnetic field in NED, tesla, or None when unknown (estimators
-    then take the horizontal direction as magnetic north and the dip from the data).
+    then take the field's magnitude and dip from the data).
+    declination: the field's declination, rad, east of true north (``atan2(mag_n[1],
+    mag_n[0])``), or None when unknown (estimators then take magnetic north for north:
+    their heading is magnetic). With ``mag_n`` it is derived from it, and a declination
+    given with ``mag_n`` must agree with it within :data:`DECLINATION_TOL`. Without
+    ``mag_n`` it is what a reader knows of the site, e.g. the autopilot's own declination
+    parameter (PX4 ``EKF2_MAG_DECL``, ArduPilot ``COMPASS_DEC``): estimators turn the
+    field they learn by it, so that their heading is true, as the autopilot's is.
     """
 
     gravity: float = G0
     mag_n: F64 | None = None
+    declination: float | None = None
 
     def __post_init__(self) -> None:
         g = float(self.gravity)
@@ -403,6 +416,23 @@ class Site:
             if not 1e-6 < n < 1e-3:
                 raise FlightError("site.mag_n", "tesla (|m| between 1e-6 and 1e-3)", f"{n:.4g}")
             _set(self, "mag_n", m)
+        d = self.declination
+        if d is not None:
+            if isinstance(d, bool) or not isinstance(d, int | float | np.floating | np.integer):
+                raise FlightError("site.declination", "a number of radians or None", repr(d))
+            d = float(d)
+            if not (np.isfinite(d) and abs(d) <= np.pi):
+                raise FlightError("site.declination", "radians in [-pi, pi] (east positive)", repr(d))
+        if self.mag_n is not None:
+            derived = float(np.arctan2(self.mag_n[1], self.mag_n[0]))
+            if d is not None and abs(np.angle(np.exp(1j * (d - derived)))) > DECLINATION_TOL:
+                raise FlightError(
+                    "site.declination",
+                    f"the declination of site.mag_n ({np.degrees(derived):.3f} deg) or None",
+                    f"{np.degrees(d):.3f} deg",
+                )
+            d = derived
+        _set(self, "declination", d)
 
     @property
     def gravity_n(self) -> F64:
@@ -625,6 +655,9 @@ class Flight:
             m = self.site.mag_n * 1e6
             field_text = f"[{m[0]:.2f}, {m[1]:.2f}, {m[2]:.2f}] uT"
             lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n = {field_text}")
+        elif self.site.declination is not None:
+            lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n unknown, "
+                         f"declination {np.degrees(self.site.declination):+.2f} deg")
         else:
             lines.append(f"site       g = {self.site.gravity:.5f} m/s^2, mag_n unknown")
         for stream, counts in self.repairs.items():

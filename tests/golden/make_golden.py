@@ -124,7 +124,7 @@ def case_flight(name: str) -> Flight:
         return simulate(make_scenario("quadrotor", wind=5.0, duration=CASE_DURATION), np.random.default_rng(3))
     if name == "nosite":
         f = case_flight("nan")
-        return dataclasses.replace(f, site=dataclasses.replace(f.site, mag_n=None))
+        return dataclasses.replace(f, site=dataclasses.replace(f.site, mag_n=None, declination=None))
     sensors = SensorSuite(vanes=None) if name == "pitot" else SensorSuite()
     f = simulate(make_scenario("fixedwing", wind=8.0, duration=CASE_DURATION), np.random.default_rng(1), sensors)
     return _with_nans(f, np.random.default_rng(2)) if name == "nan" else f

@@ -96,7 +96,8 @@ FUSE_RATE_PARAMS = ("mag_fuse_rate",)
 
 @njit(**_JIT_CORE)
 def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
-    """The reference field m_n: the site's field, or the sample's with its horizontal part north."""
+    """The reference field m_n: the site's field, or the sample's with its horizontal part
+    at the site's declination (magnetic north when it is unknown: prm["site_decl"] 0)."""
     if cfg["site_mag_known"] == 1:
         for a in range(3):
             x[X_MAGN + a] = prm["site_mag"][a]
@@ -105,8 +106,9 @@ def _set_mag_reference(cfg, prm, x, flags, mx, my, mz):
         m0 = c[0] * mx + c[1] * my + c[2] * mz
         m1 = c[3] * mx + c[4] * my + c[5] * mz
         m2 = c[6] * mx + c[7] * my + c[8] * mz
-        x[X_MAGN] = math.hypot(m0, m1)
-        x[X_MAGN + 1] = 0.0
+        h = math.hypot(m0, m1)
+        x[X_MAGN] = h * math.cos(prm["site_decl"])
+        x[X_MAGN + 1] = h * math.sin(prm["site_decl"])
         x[X_MAGN + 2] = m2
     flags[S_MAGN] = 1
 

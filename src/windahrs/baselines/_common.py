@@ -4,7 +4,8 @@ zero-order hold of the magnetometer, the lazy sample period and the batch driver
 Every adapter keeps the library's attitude in the library's own navigation frame and
 converts at the edge: :meth:`LibraryStreamer.state` returns ``q_nb`` (NED nav, FRD body,
 heading from true north). Libraries that reference heading to magnetic north are rotated
-by the site's declination ``D = atan2(mag_n[1], mag_n[0])`` about the down axis.
+by the site's declination about the down axis (:attr:`Site.declination`: ``D =
+atan2(mag_n[1], mag_n[0])`` of its field, or the declination a reader knows).
 """
 
 from __future__ import annotations
@@ -109,10 +110,9 @@ def import_library(module: str) -> ModuleType:
 
 
 def declination(site: Site) -> float:
-    """Magnetic declination D (rad, east positive) of the site's field; 0 when unknown."""
-    if site.mag_n is None:
-        return 0.0
-    return float(np.arctan2(site.mag_n[1], site.mag_n[0]))
+    """Magnetic declination D (rad, east positive) of the site (:attr:`Site.declination`:
+    its field's, or the one a reader knows); 0 when unknown."""
+    return 0.0 if site.declination is None else site.declination
 
 
 def q_about_down(angle: float) -> F64:

@@ -38,6 +38,7 @@ from windahrs.baselines._common import (
     MagMode,
     check_mag_mode,
     check_number,
+    declination,
     import_library,
 )
 from windahrs.filters.base import InitialState, triad
@@ -229,14 +230,17 @@ class _EkfStreamer(_AhrsStreamer):
         self._ekf9: Any = None
         mag_n = self._site.mag_n
         self._m_ref: F64 | None = None if mag_n is None else mag_n / np.linalg.norm(mag_n)
+        # The EKF's reference field carries the declination, so its frame is true NED: the
+        # site's field, or (unknown) one whose horizontal part is at the site's declination.
+        d = declination(self._site)
+        self._north = np.array([np.cos(d), np.sin(d), 0.0])
 
     def triad_library_nav(self, f_b: F64, mag_ut: F64 | None) -> F64:
-        # The EKF's reference field carries the declination: its frame is true NED.
-        return triad(f_b, mag_ut, self._site.mag_n)
+        return triad(f_b, mag_ut, self._north if self._m_ref is None else self._m_ref)
 
     def _build(self, with_mag: bool, P: F64 | None) -> Any:
         ahrs = import_library("ahrs")
-        m_ref = self._m_ref if self._m_ref is not None else np.array([1.0, 0.0, 0.0])
+        m_ref = self._m_ref if self._m_ref is not None else self._north
         kw: dict[str, Any] = {
             "frame": "NED",
             "frequency": 1.0 / self._period if self._period else 100.0,
@@ -261,11 +265,11 @@ class _EkfStreamer(_AhrsStreamer):
     def _ekf_with_mag(self, f_b: F64, mag_ut: F64) -> Any:
         if self._ekf9 is None:
             if self._m_ref is None:
-                # Unknown site field: magnetic north, the dip from this sample and gravity
-                # (the specific force points up: f.m = -|f||m| sin(dip)).
+                # Unknown site field: the declination's north, the dip from this sample and
+                # gravity (the specific force points up: f.m = -|f||m| sin(dip)).
                 cos_fm = float(f_b @ mag_ut) / float(np.linalg.norm(f_b) * np.linalg.norm(mag_ut))
                 sin_dip = float(np.clip(-cos_fm, -1.0, 1.0))
-                self._m_ref = np.array([np.sqrt(1.0 - sin_dip**2), 0.0, sin_dip])
+                self._m_ref = np.array([*(np.sqrt(1.0 - sin_dip**2) * self._north[:2]), sin_dip])
             P = None if self._ekf6 is None else np.array(self._ekf6.P)
             self._ekf9 = self._build(True, P)
         return self._ekf9

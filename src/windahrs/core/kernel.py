@@ -233,11 +233,17 @@ def _initial_state(cfg, prm, x, flags, P, work):
         q = (prm["init_q"][0], prm["init_q"][1], prm["init_q"][2], prm["init_q"][3])
     elif flags[S_FLAST] == 0:  # no IMU sample yet (only NaN ones): level
         q = (1.0, 0.0, 0.0, 0.0)
-    else:
+    elif cfg["site_mag_known"] == 1:
         q = _triad(
             x[f0], x[f0 + 1], x[f0 + 2],
             flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
-            cfg["site_mag_known"] == 1, prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2],
+            True, prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2],
+        )  # fmt: skip
+    else:  # the field unknown: its declination, when the site has one, makes the heading true
+        q = _triad(
+            x[f0], x[f0 + 1], x[f0 + 2],
+            flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
+            True, math.cos(prm["site_decl"]), math.sin(prm["site_decl"]), 0.0,
         )  # fmt: skip
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = q
     iv, ib, iw, iba = cfg["i_v"], cfg["i_bg"], cfg["i_w"], cfg["i_ba"]
@@ -792,6 +798,7 @@ def make_state(
     prm["gravity"] = site.gravity_n[2]
     if site.mag_n is not None:
         prm["site_mag"] = site.mag_n
+    prm["site_decl"] = 0.0 if site.declination is None else site.declination
     if ini is not None:
         prm["init_q"] = _vec(ini.q_nb, 4, "q_nb")
         if ini.gyro_bias_b is not None:

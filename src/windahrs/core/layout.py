@@ -209,6 +209,7 @@ PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("mag_norm_gate", 1, "mag_norm_gate, share of the reference's norm (0: off)"),
     ("mag_dip_gate", 1, "mag_dip_gate, rad (0: off)"),
     ("site_mag", 3, "the site's field, NED, T (0: unknown)"),
+    ("site_decl", 1, "the site's declination, rad east (0: unknown): a field learned from the data is turned by it"),
     # GNSS velocity (aid.gnss_vel)
     ("gnss_var", 1, "gnss_sigma^2, (m/s)^2"),
     ("gate_gnss2", 1, "gate_gnss^2"),

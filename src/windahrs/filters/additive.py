@@ -375,19 +375,24 @@ def step_mag(cfg, prm, s, flags, x, P, wm, wc, work, sup, inn, acc, t, mag_b):
     norm = _norm3(mag_b)
     f_b = s[S_F : S_F + 3]
     if flags[F_MAGREF] == 0:
-        # Unknown site field: the horizontal field is north, the dip is measured here
-        # against the accelerometer's down direction.
+        # Unknown site field: the horizontal field points at the site's declination (north
+        # when unknown), the dip is measured here against the accelerometer's down direction.
         down = -f_b / _norm3(f_b)
         c = np.dot(np.ascontiguousarray(mag_b), down) / norm
         c = min(max(c, -1.0), 1.0)
-        s[S_MAGREF] = math.sqrt(1.0 - c * c)
-        s[S_MAGREF + 1] = 0.0
+        h = math.sqrt(1.0 - c * c)  # turned by the site's declination (0: magnetic north)
+        s[S_MAGREF] = h * math.cos(prm["site_decl"])
+        s[S_MAGREF + 1] = h * math.sin(prm["site_decl"])
         s[S_MAGREF + 2] = c
         s[S_MAGNORM] = norm
         flags[F_MAGREF] = 1
     if flags[F_READY] == 0:
-        site = prm["site_field"]
-        q0 = triad(f_b, mag_b, True, site, _norm3(site) > 0.0)
+        ref = np.empty(3)
+        for a in range(3):
+            ref[a] = prm["site_field"][a]
+        if _norm3(ref) == 0.0:  # the field unknown: north from its declination (0: magnetic)
+            ref[0], ref[1], ref[2] = math.cos(prm["site_decl"]), math.sin(prm["site_decl"]), 0.0
+        q0 = triad(f_b, mag_b, True, ref, True)
         _start(cfg, prm, flags, x, P, q0)
         return  # this sample made the initial attitude; fusing it again would reuse it
     if cfg["paper_kind"] == KIND_PAPER:
@@ -580,6 +585,7 @@ def make_state(c: KernelConfig, site: Site, has: frozenset[str], caps: dict[int,
     s[S_TSTATE] = -np.inf  # no sample yet
     flags = np.zeros(N_FLAGS_ADD, dtype=np.int64)
     flags[core.L_FIRST : core.L_FIRST + core.N_SENSORS] = -1
+    prm["site_decl"] = 0.0 if site.declination is None else site.declination
     if site.mag_n is not None:
         prm["site_field"] = site.mag_n
         norm = float(np.linalg.norm(site.mag_n))

@@ -478,7 +478,7 @@ _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "ref_wind": (*_COMMON, "columns", "unit", "convention"),
 }
 _TOP_KEYS = ("format", "version", "flight", *_SECTION_KEYS)
-_FLIGHT_KEYS = ("time_origin", "gravity", "mag_n", "meta")
+_FLIGHT_KEYS = ("time_origin", "gravity", "mag_n", "declination_deg", "meta")
 
 # WGS-84, for GNSS velocity derived from positions.
 _WGS84_A = 6378137.0
@@ -618,7 +618,16 @@ def _site(man: _Manifest) -> Site:
         and all(isinstance(x, int | float) for x in mag_n)
     ):
         raise man.fail("flight.mag_n", "a list of 3 numbers (tesla, NED)", mag_n)
-    return Site(gravity=float(gravity), mag_n=None if mag_n is None else np.array(mag_n, float))
+    decl = man.get("flight", "declination_deg", None)
+    if decl is not None and (
+        not isinstance(decl, int | float) or isinstance(decl, bool) or not abs(decl) <= 180.0
+    ):
+        raise man.fail("flight.declination_deg", "degrees east of true north, -180 to 180", decl)
+    return Site(
+        gravity=float(gravity),
+        mag_n=None if mag_n is None else np.array(mag_n, float),
+        declination=None if decl is None else math.radians(decl),
+    )
 
 
 def _body_nav(frame: str) -> tuple[Callable[[F64], F64], Callable[[F64], F64]]:

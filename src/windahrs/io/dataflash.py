@@ -18,7 +18,11 @@ reference   ``XKQ`` (``Q1..Q4`` = w, x, y, z, EKF3 core ``core``) else ``XKQ1``/
             else ``AHR2``: kind "autopilot"
 ref_wind    ``XKF2`` (``VWN``, ``VWE`` m/s; the EKF's wind state is the velocity of the air)
             else ``NKF2``; down = 0
-meta        ``PARM`` (``Name``, ``Value``): ``param.EK3_*`` and ``param.EK2_*``, first value
+site        declination from ``PARM`` ``COMPASS_DEC`` (radians; 0, the default, is unknown):
+            what ArduPilot's EKF used, so estimated headings are true, as ``XKQ``'s is;
+            the field itself is unknown
+meta        ``PARM`` (``Name``, ``Value``): ``param.EK3_*``, ``param.EK2_*`` and
+            ``param.COMPASS_DEC``, first value
 ==========  ================================================================================
 
 Time: ``TimeUS`` (microseconds since boot) minus the earliest ``TimeUS`` of the messages
@@ -50,6 +54,7 @@ from windahrs.flight import (
 )
 from windahrs.io.edge import (
     LogFormatError,
+    autopilot_site,
     captured_output,
     flight_errors_name,
     guard,
@@ -94,6 +99,9 @@ _FIELDS: dict[str, tuple[str, ...]] = {
 #: Every message type the reader uses.
 DATAFLASH_MESSAGES: tuple[str, ...] = (*_FIELDS, "PARM")
 _PARAM_PREFIXES = ("EK3_", "EK2_")
+#: ArduPilot's declination parameter, radians (set by hand, or from its World Magnetic
+#: Model table when COMPASS_AUTODEC is on; ArduPilot parameter reference).
+_DECLINATION_PARAMS = (("COMPASS_DEC", 1.0),)
 
 _Rows = dict[str, list[tuple[int, tuple[float, ...]]]]
 
@@ -158,6 +166,8 @@ def read_dataflash(
                 air=_air(rows, t0, meta, rep),
                 reference=_reference(rows, t0, meta, rep),
                 ref_wind=_wind(rows, t0, meta, rep),
+                site=autopilot_site({k.removeprefix("param."): v for k, v in params.items()},
+                                    _DECLINATION_PARAMS, meta),
                 meta=meta,
                 repairs=rep.counts,
             )
@@ -222,7 +232,8 @@ def _collect(log: Any, instance: int, core: int) -> tuple[_Rows, dict[str, float
         cols = m.get_fieldnames()
         if name == "PARM":
             pname = str(m.Name)
-            if pname.startswith(_PARAM_PREFIXES) and f"param.{pname}" not in params:
+            keep = pname.startswith(_PARAM_PREFIXES) or pname in dict(_DECLINATION_PARAMS)
+            if keep and f"param.{pname}" not in params:
                 params[f"param.{pname}"] = param_float(m.Value)
             continue
         if name not in rows or "TimeUS" not in cols:

@@ -17,6 +17,8 @@ applies at the edge, so that nothing is dropped silently:
   zeros) become NaN rows, i.e. gaps that are not scored, and are counted;
 * what a third-party parser prints about corrupt bytes is captured and counted
   (``meta["<format>.parser_messages"]``), not shown;
+* an autopilot log's site takes the autopilot's own declination parameter
+  (:func:`autopilot_site`), so that estimated headings are true, as the log's reference is;
 * a truncated file (its last message or row incomplete) is read up to its last complete
   one, with a :class:`TruncatedLogWarning` saying how much was dropped, and the count in
   ``meta["<format>.truncated_bytes"]`` (CSV: ``meta["<stream>.dropped_truncated_row"]``).
@@ -36,7 +38,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from windahrs.flight import FlightError
+from windahrs.flight import FlightError, Site
 
 __all__ = [
     "LogFormatError",
@@ -144,6 +146,28 @@ def param_float(value: Any) -> float:
     if isinstance(value, int | np.integer):
         return v
     return float(str(np.float32(v))) if np.isfinite(v) else v
+
+
+def autopilot_site(params: dict[str, Any], names: tuple[tuple[str, float], ...], meta: dict[str, Any]) -> Site:
+    """The site of an autopilot's log, from the first of its declination parameters
+    ``names`` ((name, radians per unit), in order of preference) that is logged, finite and
+    non-zero (0 is the stacks' default, "not set"; a site on the agonic line loses
+    nothing by it). The autopilot's attitude, the reference of its log, is heading from
+    true north by that declination (its own or the World Magnetic Model's lookup, which
+    the stacks save in it), so the estimators turn the field they learn by it too.
+    Records ``meta["site.declination_param"]``. Gravity is standard; the field unknown."""
+    for name, scale in names:
+        value = params.get(name)
+        if value is None:
+            continue
+        try:
+            d = float(value) * scale
+        except (TypeError, ValueError):
+            continue
+        if np.isfinite(d) and d != 0.0 and abs(d) <= np.pi:
+            meta["site.declination_param"] = name
+            return Site(declination=d)
+    return Site()
 
 
 class ParserOutput:

@@ -7,7 +7,9 @@ Flight field                    ULog topic (fields)
 ==============================  ==================================================
 imu                             ``sensor_combined`` (``gyro_rad``, ``accelerometer_m_s2``)
 mag                             ``vehicle_magnetometer`` (``magnetometer_ga``, gauss);
-                                else ``sensor_combined.magnetometer_ga`` (old layout)
+                                else ``sensor_combined.magnetometer_ga`` (old layout);
+                                less EKF2's saved bias ``EKF2_MAGBIAS_*`` when it is for
+                                this device, as EKF2 (PX4 1.12 and before) fuses it
 gnss                            ``vehicle_gps_position`` else ``sensor_gps``
                                 (``vel_n/e/d_m_s``, rows with ``vel_ned_valid`` only)
 air                             ``airspeed_validated`` else ``airspeed``
@@ -17,6 +19,11 @@ ref_wind                        ``wind`` else ``wind_estimate`` (``windspeed_nor
                                 PX4's wind state is the velocity of the air, down = 0)
 reference                       ``vehicle_attitude_groundtruth`` (kind "truth", SITL)
                                 else ``vehicle_attitude`` (kind "autopilot")
+site                            declination from ``EKF2_MAG_DECL`` else
+                                ``ATT_MAG_DECL`` (degrees; 0, the default, is unknown):
+                                what EKF2 used, saved from its World Magnetic Model lookup
+                                (``EKF2_DECL_TYPE``); estimated headings are then true,
+                                as ``vehicle_attitude``'s is. The field itself is unknown.
 meta                            ``param.EKF2_*`` initial parameters, as floats
 ==============================  ==================================================
 
@@ -47,6 +54,7 @@ from windahrs.flight import (
 )
 from windahrs.io.edge import (
     LogFormatError,
+    autopilot_site,
     captured_output,
     flight_errors_name,
     guard,
@@ -87,6 +95,9 @@ ULOG_TOPICS: tuple[str, ...] = (
 #: ``*_timestamp_relative`` value meaning "no sample" (PX4 RELATIVE_TIMESTAMP_INVALID).
 _REL_INVALID = 0x7FFFFFFF
 _GAUSS = 1e-4  # tesla per gauss
+#: The declination parameters, in degrees: EKF2's, then attitude_estimator_q's (PX4 docs,
+#: parameter reference).
+_DECLINATION_PARAMS = (("EKF2_MAG_DECL", float(np.radians(1.0))), ("ATT_MAG_DECL", float(np.radians(1.0))))
 _US = 1e-6
 #: Reads without progress after which a ULog parse is stopped (see _ProgressFile).
 _IDLE_READS = 300_000
@@ -164,6 +175,7 @@ def read_ulog(
     for key in ("sys_name", "ver_hw", "ver_sw"):
         if key in ulog.msg_info_dict:
             meta[f"ulog.{key}"] = str(ulog.msg_info_dict[key])
+    site = autopilot_site(ulog.initial_parameters, _DECLINATION_PARAMS, meta)
     bad_params = 0
     for name, value in sorted(ulog.initial_parameters.items()):
         if name.startswith("EKF2_"):
@@ -190,11 +202,12 @@ def read_ulog(
             imu = _imu(sc, t0, meta, rep)
             flight = Flight(
                 imu=imu,
-                mag=_mag(topics, sc, t0, meta, rep),
+                mag=_mag(topics, sc, t0, meta, rep, ulog.initial_parameters),
                 gnss=_gnss(topics, t0, meta, rep),
                 air=_air(topics, t0, meta, rep, air_topic),
                 reference=_reference(topics, t0, meta, rep),
                 ref_wind=_wind(topics, t0, meta, rep),
+                site=site,
                 meta=meta,
                 repairs=rep.counts,
             )
@@ -328,11 +341,34 @@ def _imu(sc: Data, t0: int, meta: dict[str, Any], rep: RepairLog) -> ImuStream:
     return ImuStream(t=t, w_b=rep.rows("imu", w, GYRO_RANGE), f_b=rep.rows("imu", f, ACCEL_RANGE))
 
 
-def _mag(topics: _Topics, sc: Data, t0: int, meta: dict[str, Any], rep: RepairLog) -> MagStream | None:
+def _ekf2_mag_bias(params: dict[str, Any], device_id: Any, meta: dict[str, Any]) -> NDArray[np.float64]:
+    """The hard-iron bias (gauss, body) that EKF2 (PX4 1.12 and before) subtracts from the
+    magnetometer before fusing it: its learned bias saved at disarm, ``EKF2_MAGBIAS_X/Y/Z``,
+    applied when ``EKF2_MAGBIAS_ID`` is the device read (``vehicle_magnetometer``'s
+    ``device_id``, else ``CAL_MAG_PRIME``), as ekf2_main.cpp does; zero otherwise (newer PX4
+    saves it into the calibration that ``vehicle_magnetometer`` already applies). The
+    estimators then see the field the autopilot's reference was estimated from.
+    ``meta["mag.ekf2_bias_subtracted"]`` says it was (the values are ``param.EKF2_MAGBIAS_*``)."""
+    try:
+        bias_id = int(params.get("EKF2_MAGBIAS_ID", 0))
+        dev = int(device_id if device_id is not None else params.get("CAL_MAG_PRIME", 0))
+        b = np.array([float(params.get(f"EKF2_MAGBIAS_{a}", 0.0)) for a in "XYZ"])
+    except (TypeError, ValueError):  # a corrupt parameter
+        return np.zeros(3)
+    if bias_id == 0 or dev != bias_id or not np.isfinite(b).all() or not b.any():
+        return np.zeros(3)
+    meta["mag.ekf2_bias_subtracted"] = True
+    return b
+
+
+def _mag(
+    topics: _Topics, sc: Data, t0: int, meta: dict[str, Any], rep: RepairLog, params: dict[str, Any]
+) -> MagStream | None:
     vm = topics.get("vehicle_magnetometer")
     if vm is not None and len(vm["timestamp"]):
         meta["mag.topic"] = topics.used["vehicle_magnetometer"]
-        m = _vec(vm, "magnetometer_ga") * _GAUSS
+        dev = int(np.asarray(vm["device_id"])[0]) if "device_id" in vm else None
+        m = (_vec(vm, "magnetometer_ga") - _ekf2_mag_bias(params, dev, meta)) * _GAUSS
         t, (m,) = _clean("mag", _stamps(vm), t0, rep, m)
         return MagStream(t=t, mag_b=rep.rows("mag", m, MAG_RANGE))
     if "magnetometer_ga[0]" not in sc:
@@ -341,7 +377,7 @@ def _mag(topics: _Topics, sc: Data, t0: int, meta: dict[str, Any], rep: RepairLo
     # its sample time is timestamp + magnetometer_timestamp_relative, and a repeated time
     # is the same sample published again (expected, so counted apart from duplicates).
     t_us = np.asarray(sc["timestamp"]).astype(np.int64)
-    m = _vec(sc, "magnetometer_ga") * _GAUSS
+    m = (_vec(sc, "magnetometer_ga") - _ekf2_mag_bias(params, None, meta)) * _GAUSS
     if "magnetometer_timestamp_relative" in sc:
         rel = np.asarray(sc["magnetometer_timestamp_relative"]).astype(np.int64)
         ok = rel != _REL_INVALID

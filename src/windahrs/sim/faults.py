@@ -200,6 +200,8 @@ class RawFlight:
         man = ['format = "windahrs.csv"', "version = 1", "", "[flight]", 'time_origin = "none"']
         if f.site.mag_n is not None:
             man.append(f"mag_n = [{', '.join(repr(float(v)) for v in f.site.mag_n)}]")
+        elif f.site.declination is not None:
+            man.append(f"declination_deg = {math.degrees(f.site.declination)!r}")
         man.append(f"gravity = {f.site.gravity!r}")
         imu = self.imu
         _csv(d / "imu.csv", ["t", "wx", "wy", "wz", "fx", "fy", "fz"], [imu["t"], imu["w_b"], imu["f_b"]])
