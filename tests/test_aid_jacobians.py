@@ -74,7 +74,7 @@ def _inject(st, dx: np.ndarray):  # type: ignore[no-untyped-def]
 
 def _h_and_H(st, aid: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     """h(x) (m,) and H (m, dim) of one aid source at the state."""
-    cfg, prm, x, flags, P, work, sup, inn, acc = st
+    cfg, prm, x, flags, P, work, sup, inn, acc = st[:9]
     flags[K.L_CNT : K.L_CNT + K.N_SENSORS] = 0  # room in the logs
     if aid == "gravity":
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, 0.0, np.r_[np.zeros(3), z], 0.01)

@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from windahrs.core.kalman import _bias_rows, _fuse
 from windahrs.core.layout import (
@@ -39,11 +40,7 @@ from windahrs.core.layout import (
     W_NU,
     W_R,
     X_BG,
-    X_RF,
-    X_RN,
-    X_RW,
-    X_TREST,
-    X_TRFUSE,
+    record_dtype,
 )
 from windahrs.core.predict import _lowpass_gain
 
@@ -58,45 +55,64 @@ PARAMS = (
     "rest_bias_clip",
 )
 
+#: The detector's state (KernelState.rest, a (1,) array of :data:`REST`; float64 fields, as
+#: the flat state they came from). (name, size, meaning)
+REST_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("w", 3, "low-passed angular rate, rad/s"),
+    ("f", 3, "low-passed specific force, m/s^2"),
+    ("n", 1, "samples in those low-passes (0: not started; -1: rest_detection \"start\" after the first motion)"),
+    ("t_rest", 1, "when the current rest began, s (NaN: moving)"),
+    ("t_fuse", 1, "when the rest measurement was last fused, s (-inf: never)"),
+)
+REST = record_dtype(REST_FIELDS)
+
+
+def rest_state() -> NDArray[np.void]:
+    """A fresh detector state: not started, not at rest, never fused."""
+    rs = np.zeros(1, REST)
+    rs["t_rest"], rs["t_fuse"] = np.nan, -np.inf
+    return rs
+
 
 @njit(inline="always", **_JIT_CORE)
-def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
+def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row, dt):
     """IMU sample ``row`` = [w_b, f_b] at t s, dt s after the last one: rest detection,
-    and at rest (once per rest_tau) the low-passed angular rate fused as the gyro bias."""
-    if x[X_RN] < 0.0:  # (rest_detection "start", after the first motion)
+    and at rest (once per rest_tau) the low-passed angular rate fused as the gyro bias.
+    rs: the detector's record (:data:`REST`), read and written in place."""
+    if rs["n"] < 0.0:  # (rest_detection "start", after the first motion)
         return
-    if x[X_RN] == 0.0:
+    if rs["n"] == 0.0:
         for i in range(3):
-            x[X_RW + i] = row[i]
-            x[X_RF + i] = row[3 + i]
-        x[X_RN] = 1.0
+            rs["w"][i] = row[i]
+            rs["f"][i] = row[3 + i]
+        rs["n"] = 1.0
         return
     tau = prm["rest_tau"]
     a = _lowpass_gain(dt, tau)
     dw2, df2, clip = 0.0, 0.0, 0.0
     for i in range(3):
-        x[X_RW + i] += a * (row[i] - x[X_RW + i])
-        x[X_RF + i] += a * (row[3 + i] - x[X_RF + i])
-        dw2 += (row[i] - x[X_RW + i]) ** 2
-        df2 += (row[3 + i] - x[X_RF + i]) ** 2
-        clip = max(clip, abs(x[X_RW + i]))
-    x[X_RN] += 1.0
+        rs["w"][i] += a * (row[i] - rs["w"][i])
+        rs["f"][i] += a * (row[3 + i] - rs["f"][i])
+        dw2 += (row[i] - rs["w"][i]) ** 2
+        df2 += (row[3 + i] - rs["f"][i]) ** 2
+        clip = max(clip, abs(rs["w"][i]))
+    rs["n"] += 1.0
     if not (dw2 < prm["rest_w2"] and df2 < prm["rest_f2"] and clip <= prm["rest_clip"]):
-        x[X_TREST] = np.nan  # moving
-        if cfg["rest"] == REST_START and x[X_TRFUSE] > -np.inf:
-            x[X_RN] = -1.0  # the start's rest is over: no more rest updates
+        rs["t_rest"] = np.nan  # moving
+        if cfg["rest"] == REST_START and rs["t_fuse"] > -np.inf:
+            rs["n"] = -1.0  # the start's rest is over: no more rest updates
         return
-    if math.isnan(x[X_TREST]):
-        x[X_TREST] = t
-    if t - x[X_TREST] < prm["rest_min_t"] or t - x[X_TRFUSE] < tau:
+    if math.isnan(rs["t_rest"]):
+        rs["t_rest"] = t
+    if t - rs["t_rest"] < prm["rest_min_t"] or t - rs["t_fuse"] < tau:
         return
-    x[X_TRFUSE] = t
+    rs["t_fuse"] = t
     H, R, nu = work[W_H : W_H + 3], work[W_R : W_R + 3], work[W_NU]
     ib = cfg["i_bg"]
     var = prm["rest_var"] + prm["gyro_noise2"] / (2.0 * tau)
     for k in range(3):
         H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0  # (the additive form reads the attitude's columns)
-        nu[k] = x[X_RW + k] - x[X_BG + k]
+        nu[k] = rs["w"][k] - x[X_BG + k]
         for l in range(3):
             R[k, l] = var if k == l else 0.0
     nsup = _bias_rows(work, sup[0], ib, np.int64(0))

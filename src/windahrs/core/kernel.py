@@ -49,6 +49,7 @@ from windahrs.aid.mag import (
 )
 from windahrs.aid.rest import (
     fuse_rest,
+    rest_state,
 )
 from windahrs.aid.sideslip import (
     fuse_sideslip,
@@ -124,8 +125,6 @@ from windahrs.core.layout import (
     X_TIMU,
     X_TINIT,
     X_TOK,
-    X_TREST,
-    X_TRFUSE,
     X_TWIN0,
     X_V,
     X_VAIR,
@@ -394,9 +393,10 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
 
 
 @njit(inline="always", **_JIT_CORE)
-def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
+def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row):
     """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
-    screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid source."""
+    screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid
+    sources. rs: the rest detector's record (aid.rest.REST)."""
     if screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
         row = work[W_IMU]  # the sample propagated in its place
     dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
@@ -417,7 +417,7 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
         if dt > prm["unmeasured_motion_dt"]:  # (tested here: a call per sample costs more than the test)
             add_held_sample_noise(cfg, prm, x, P, work, dt)
         if cfg["rest"] != REST_OFF:  # the gyro's bias, when the vehicle is at rest
-            fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
+            fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row, dt)
     if cfg["kind"] != KIND_INS:  # the INS takes the accelerometer as an input
         fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt)
         return
@@ -573,7 +573,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
     types, so numba compiles this loop once for runs, batches, streams and the smoother."""
     k = np.int64(-1)
     smooth = sm.aux.shape[0] > 0
-    cfg, prm, x, flags, P, work, sup, inn, acc = st  # once: each extraction costs refcounting
+    cfg, prm, x, flags, P, work, sup, inn, acc, rest = st  # once: each extraction costs refcounting
+    rs = rest[0]  # (the aid sources' records: their fields are read and written in place)
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
         kind = kinds[i]
@@ -586,7 +587,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
         elif kind == EVENT_IMU:
-            step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
+            step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row)
         elif kind == EVENT_MAG:
             step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
         elif kind == EVENT_GNSS:
@@ -811,7 +812,6 @@ def make_state(
     flags[L_FIRST : L_FIRST + N_SENSORS] = -1
     x = np.zeros(N_X)
     x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
-    x[X_TREST], x[X_TRFUSE] = np.nan, -np.inf  # not at rest, never fused
     x[X_TINIT] = np.nan  # not initialised
     return KernelState(
         cfg=cfg,
@@ -823,6 +823,7 @@ def make_state(
         sup=np.zeros((2, NMAX), dtype=np.int64),
         inn=np.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),
+        rest=rest_state(),
     )
 
 

@@ -3,15 +3,17 @@ between events, and the sensor registry (:data:`SENSORS`) the innovation logs ar
 from. The parameters and the configuration are named records (:data:`PRM`, :data:`CFG`:
 numpy structured scalars read as ``prm["name"]`` in compiled code and in Python alike); the
 state, the flags and the scratch space are still flat arrays named by the index constants
-below (the move of the state to a record: docs/records.md).
+below, except the private state of the aid sources that moved to records of their own
+(:class:`KernelState`; the move of the state to a record: docs/records.md).
 
-:class:`KernelState` holds nine fields: the configuration and parameters (two records)
+:class:`KernelState` holds nine core fields: the configuration and parameters (two records)
 encoded once from the estimator's parameters, the nominal state with the samples it
 remembers, flags and counters, the covariance (zero-padded to whole SIMD lanes: the
 additive filters' loops and the error-state prediction's rows of Phi P of more than
 TRIANGLE_N states run over whole padded rows, the error-state update over the n states),
-scratch space and the innovation logs. Helpers take the arrays they need, not the
-KernelState: numba reference-counts every array taken out of a tuple.
+scratch space and the innovation logs; then the private state of aid sources as records of
+their own, declared next to them (``st[:9]`` are the core fields). Helpers take the arrays
+they need, not the KernelState: numba reference-counts every array taken out of a tuple.
 """
 
 from __future__ import annotations
@@ -319,29 +321,24 @@ X_ASC = X_AVAR + 10  # (3,) airspeed scale estimator: wind N, E m/s, inverse sca
 X_ASCP = X_AVAR + 13  # (9,) its covariance, row-major
 X_TASC = X_AVAR + 22  # time of its last update, s
 X_NAVAR = X_AVAR + 23  # samples averaged into X_AVAR so far
-X_RW = X_AVAR + 24  # (3,) low-passed angular rate, rad/s (aid.rest)
-X_RF = X_AVAR + 27  # (3,) low-passed specific force, m/s^2 (aid.rest)
-X_RN = X_AVAR + 30  # samples in those low-passes (0: not started)
-X_TREST = X_AVAR + 31  # when the current rest began, s (NaN: moving)
-X_TRFUSE = X_AVAR + 32  # when the rest measurement was last fused, s
-X_JLAG = X_AVAR + 33  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
+X_JLAG = X_AVAR + 24  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
-X_NGAIN = X_AVAR + 42  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
-X_JMAG = X_AVAR + 44  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
+X_NGAIN = X_AVAR + 33  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
+X_JMAG = X_AVAR + 35  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
 #: (2,) each: the last step dt s of a low-pass at the IMU's (or magnetometer's) rate and its
 #: gain (core.predict.steady_gain): the gravity aid's mean, the INS's mean specific force
 #: (aid.gnss_vel), the magnetometer's mean
-X_FGAIN = X_AVAR + 53
-X_LGAIN = X_AVAR + 55
-X_MGAIN = X_AVAR + 57
-X_TINIT = X_AVAR + 59  # when the filter initialised, s (NaN: not yet): Estimate.init_index
-X_RM = X_AVAR + 60  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
-X_NRM = X_AVAR + 63  # samples in it (0: no start check pending)
-X_NFUSE = X_AVAR + 64  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
-X_TGFUSE = X_AVAR + 65  # when it was last fused, s
-X_NMFUSE = X_AVAR + 66  # the same for the magnetometer's mean (aid.mag)
-X_TMFUSE = X_AVAR + 67
-N_X = X_AVAR + 68
+X_FGAIN = X_AVAR + 44
+X_LGAIN = X_AVAR + 46
+X_MGAIN = X_AVAR + 48
+X_TINIT = X_AVAR + 50  # when the filter initialised, s (NaN: not yet): Estimate.init_index
+X_RM = X_AVAR + 51  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
+X_NRM = X_AVAR + 54  # samples in it (0: no start check pending)
+X_NFUSE = X_AVAR + 55  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
+X_TGFUSE = X_AVAR + 56  # when it was last fused, s
+X_NMFUSE = X_AVAR + 57  # the same for the magnetometer's mean (aid.mag)
+X_TMFUSE = X_AVAR + 58
+N_X = X_AVAR + 59
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -408,3 +405,6 @@ class KernelState(NamedTuple):
     sup: I64  # (2, NMAX) columns where H (row 0) and Hq (row 1) may be non-zero
     inn: F64  # (L, 5) innovation log rows: t, nu (3, NaN-padded), nis
     acc: NDArray[np.bool_]  # (L,) accepted
+    # the aid sources' private state: (1,) arrays of their records, declared next to them
+    # (compiled code takes element 0, whose fields it reads and writes in place)
+    rest: NDArray[np.void]  # aid.rest.REST

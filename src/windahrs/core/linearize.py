@@ -170,7 +170,7 @@ class Linearization:
         row = self._row
         row[:] = 0.0
         row[5] = -self._gravity
-        fuse_gravity(*st, 0.0, row, 0.0)
+        fuse_gravity(*st[:9], 0.0, row, 0.0)
         return self._out(3)
 
     def mag(self) -> tuple[F64, F64]:
@@ -182,7 +182,7 @@ class Linearization:
         self._begin()
         m = 3 if st.cfg["mag_mode"] == K.MAG_3D else 1
         self._row[:3] = st.x[K.X_MAGN : K.X_MAGN + 3]  # (any sample: the innovation is not used)
-        fuse_mag(*st, 0.0, self._row)
+        fuse_mag(*st[:9], 0.0, self._row)
         return self._out(m)
 
     def gnss(self) -> tuple[F64, F64]:
@@ -192,7 +192,7 @@ class Linearization:
             raise ValueError("gnss: expected a layout with a velocity block")
         self._begin()
         self._row[:] = 0.0
-        fuse_gnss(*self.st, 0.0, self._row)
+        fuse_gnss(*self.st[:9], 0.0, self._row)
         return self._out(3)
 
     def _air(self, tas: float, aoa: float, sideslip: float) -> tuple[bool, float, float, float, float]:
@@ -209,19 +209,19 @@ class Linearization:
         "wind"), at the sample's airspeed tas m/s, angle of attack and sideslip rad: H (3,
         dim), R (3, 3) (m/s)^2 = J diag(tas_sigma^2, vane_sigma^2, vane_sigma^2) J^T."""
         _, ca, sa, cb, sb = self._air(tas, aoa, sideslip)
-        fuse_air_vector(*self.st, 0.0, float(tas), ca, sa, cb, sb, self.layout.has("v"), 0.0)
+        fuse_air_vector(*self.st[:9], 0.0, float(tas), ca, sa, cb, sb, self.layout.has("v"), 0.0)
         return self._out(3)
 
     def tas(self, tas: float) -> tuple[F64, F64]:
         """True airspeed (aid.tas; a layout with "wind"): H (1, dim) with no attitude
         columns, R (1, 1) (m/s)^2 = tas_sigma^2."""
         self._air(tas, math.nan, math.nan)
-        fuse_tas(*self.st, 0.0, float(tas), self.layout.has("v"), 0.0)
+        fuse_tas(*self.st[:9], 0.0, float(tas), self.layout.has("v"), 0.0)
         return self._out(1)
 
     def sideslip(self) -> tuple[F64, F64]:
         """The synthetic zero sideslip (aid.sideslip; a layout with "wind"): H (1, dim),
         R (1, 1) rad^2 = sideslip_sigma^2."""
         self._air(0.0, math.nan, math.nan)
-        fuse_sideslip(*self.st, 0.0, 0.0, self.layout.has("v"), 0.0)
+        fuse_sideslip(*self.st[:9], 0.0, 0.0, self.layout.has("v"), 0.0)
         return self._out(1)

@@ -435,7 +435,7 @@ def run_usque(st, t_ev, kinds, vals, out_q, out_bg, out_vw, out_cov, rec):
     after every event with t <= t_imu[k]. out_vw: an empty (0, 3) array (no velocity or
     wind states). Events other than IMU and magnetometer are ignored."""
     k = np.int64(-1)
-    cfg, prm, x, flags, P, work, _, inn, acc = st
+    cfg, prm, x, flags, P, work, _, inn, acc = st[:9]  # (the core's fields: no aid source's records)
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
         kind = kinds[i]
