@@ -59,14 +59,14 @@ __all__ = ["chunk_size", "run_batch"]
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _run_packed(
-    cfg, prm, x, flags, sup, rest,
+    cfg, prm, x, flags, sup, screen, rest,
     P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
     t_ev, kinds, vals, e_off,
     q, bg, v, w, n_off, cov, c_off, c_rows, dims,
     order, done, rec, sm,
 ):  # fmt: skip
     """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
-    cfg, prm, x, flags (R, ...), sup (R, 2, NMAX) and the aid sources' records rest (R, 1):
+    cfg, prm, x, flags (R, ...), sup (R, 2, NMAX) and the aid sources' records screen, rest (R, 1):
     the runs' fixed-size state records;
     P, work (flat): run r's covariance (p_n[r], p_n[r]) at p_off[r], its scratch (rows,
     w_cols[r]) at w_off[r]; inn (L, 5), acc (L,): its logs in rows l_off[r]:l_off[r + 1];
@@ -93,6 +93,7 @@ def _run_packed(
             sup[r],
             inn[l_off[r] : l_off[r + 1]],
             acc[l_off[r] : l_off[r + 1]],
+            screen[r],
             rest[r],
         )
         out_cov = cov[c_off[r] : c_off[r + 1]].reshape((c_rows[r], d, d))
@@ -120,8 +121,8 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     """The runs' arrays packed end to end (the arguments of :func:`_run_packed`, without
     ``order``), and the runs with their states and outputs replaced by views of them."""
     sts = [r.st for r in runs]
-    cfg, prm, x, flags, sup, rest = (
-        np.stack([getattr(s, f) for s in sts]) for f in ("cfg", "prm", "x", "flags", "sup", "rest")
+    cfg, prm, x, flags, sup, screen, rest = (
+        np.stack([getattr(s, f) for s in sts]) for f in ("cfg", "prm", "x", "flags", "sup", "screen", "rest")
     )
     p_n = np.array([s.P.shape[0] for s in sts], dtype=np.int64)
     p_off = _offsets([s.P.size for s in sts])
@@ -169,6 +170,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             sup=sup[i],
             inn=inn[l0:l1],
             acc=acc[l0:l1],
+            screen=screen[i],
             rest=rest[i],
         )
         views.append(r._replace(
@@ -179,7 +181,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             w=w[n0:n1],
             cov=cov[c_off[i] : c_off[i + 1]].reshape(r.cov.shape),
         ))  # fmt: skip
-    args = (cfg, prm, x, flags, sup, rest, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
+    args = (cfg, prm, x, flags, sup, screen, rest, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
             t_ev, kinds, vals, e_off, q, bg, v, w, n_off, cov, c_off, c_rows, dims)  # fmt: skip
     return args, views
 

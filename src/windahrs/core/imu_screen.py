@@ -43,34 +43,33 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from windahrs.core.kalman import _log
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_IMU,
     L_CNT,
-    S_CLIP,
     S_FLAST,
     S_INIT,
-    S_NHELD,
     W_IMU,
     W_NU,
     X_DF,
-    X_DTPEND,
     X_DW,
     X_FLAST,
-    X_PEND,
     X_Q,
-    X_SF2,
-    X_SW2,
     X_TIMU,
     X_V,
     X_WLAST,
+    record_dtype,
 )
 from windahrs.core.predict import add_unmeasured_motion
 from windahrs.core.quat import _dcm9, _qexp, _qmul, _qnormalize
 
-__all__ = ["CLIP_F", "CLIP_SAMPLES", "CLIP_W", "FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "TAU_CHANGES", "screen_imu"]
+__all__ = [
+    "CLIP_F", "CLIP_SAMPLES", "CLIP_W", "FLOOR_F", "FLOOR_W", "GAP", "PARAMS", "SCREEN", "TAU_CHANGES", "screen_imu",
+    "screen_state",
+]  # fmt: skip
 
 #: The fields of EskfParams the screen reads.
 PARAMS = ("gyro_range", "accel_range", "imu_spike_gate")
@@ -95,32 +94,51 @@ CLIP_SAMPLES = 5
 #: Longer steps are not screened, s (the motion between the samples was not measured).
 GAP = 0.1
 
+#: The screen's state (KernelState.screen, a (1,) array of :data:`SCREEN`): float64 fields,
+#: then int64 counters, as the flat state and flags they came from. (name, size, meaning)
+SCREEN_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("sw2", 1, "mean square of the angular rate's sample-to-sample change, (rad/s)^2"),
+    ("sf2", 1, "... of the specific force's, (m/s^2)^2"),
+    ("pend", 6, "the held sample's excess over the propagated one: w (rad/s), f (m/s^2)"),
+    ("dt_pend", 1, "its step, s"),
+)
+SCREEN_COUNT_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("held", 1, "the last sample's held parts: 1 its angular rate, 2 its specific force, 3 both"),
+    ("clip", 6, "samples in a row each axis has repeated one large magnitude"),
+)
+SCREEN = np.dtype(record_dtype(SCREEN_FIELDS).descr + record_dtype(SCREEN_COUNT_FIELDS, np.int64).descr)
+
+
+def screen_state() -> NDArray[np.void]:
+    """A fresh screen state: nothing held, no change seen yet."""
+    return np.zeros(1, SCREEN)
+
 
 @njit(**_JIT_CORE)
-def _catch_up(cfg, x, flags, dt, w, f):
+def _catch_up(cfg, x, flags, sc, dt, w, f):
     """The held sample was motion: its step's excess over what was propagated added to the
     nominal state (w: its rotation; f: for the INS, its velocity increment rotated to NED),
     and it becomes the last propagated sample."""
     if w:
         if flags[S_INIT] == 1:
-            e = _qexp(x[X_PEND] * dt, x[X_PEND + 1] * dt, x[X_PEND + 2] * dt)
+            e = _qexp(sc["pend"][0] * dt, sc["pend"][1] * dt, sc["pend"][2] * dt)
             q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
             x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
         for a in range(3):
-            x[X_WLAST + a] += x[X_PEND + a]
+            x[X_WLAST + a] += sc["pend"][a]
     if f:
         if flags[S_INIT] == 1 and cfg["i_v"] >= 0:
             c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-            fx, fy, fz = x[X_PEND + 3] * dt, x[X_PEND + 4] * dt, x[X_PEND + 5] * dt
+            fx, fy, fz = sc["pend"][3] * dt, sc["pend"][4] * dt, sc["pend"][5] * dt
             x[X_V] += c[0] * fx + c[1] * fy + c[2] * fz
             x[X_V + 1] += c[3] * fx + c[4] * fy + c[5] * fz
             x[X_V + 2] += c[6] * fx + c[7] * fy + c[8] * fz
         for a in range(3):
-            x[X_FLAST + a] += x[X_PEND + 3 + a]
+            x[X_FLAST + a] += sc["pend"][3 + a]
 
 
 @njit(**_JIT_CORE)
-def _clipped(cfg, x, flags, P, work, row, dt):
+def _clipped(cfg, x, flags, sc, P, work, row, dt):
     """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) for
     :data:`CLIP_SAMPLES` samples are clipped: the true value is beyond it by as much as it
     again, unknown, and that step's motion becomes spread, as a held sample's would (PX4 EKF2
@@ -129,8 +147,8 @@ def _clipped(cfg, x, flags, P, work, row, dt):
     for a in range(6):
         v, last = abs(row[a]), abs(x[X_WLAST + a] if a < 3 else x[X_FLAST + a - 3])
         held = v >= (CLIP_W if a < 3 else CLIP_F) and v == last
-        flags[S_CLIP + a] = flags[S_CLIP + a] + 1 if held else 0
-        d = v if flags[S_CLIP + a] >= CLIP_SAMPLES - 1 else 0.0
+        sc["clip"][a] = sc["clip"][a] + 1 if held else 0
+        d = v if sc["clip"][a] >= CLIP_SAMPLES - 1 else 0.0
         if a < 3:
             x[X_DW + a] = d
         else:
@@ -151,27 +169,27 @@ def _change2(row, x, i_row, i_x):
 
 
 @njit(**_JIT_CORE)
-def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
+def screen_imu(cfg, prm, x, flags, sc, P, inn, acc, work, t, row):
     """Whether the IMU sample ``row`` = [w_b, f_b] (finite) at t s is held: True when the
     sample to propagate in its place, with the last propagated angular rate or specific
     force in place of a held one (module docstring), is in work[W_IMU]; False: propagate
-    ``row`` itself."""
+    ``row`` itself. sc: the screen's record (:data:`SCREEN`), read and written in place."""
     if flags[S_FLAST] == 0:
         return False
     k = prm["imu_spike_gate"]
     dt = t - x[X_TIMU]
-    gw2 = max(FLOOR_W * FLOOR_W, k * k * x[X_SW2])
-    gf2 = max(FLOOR_F * FLOOR_F, k * k * x[X_SF2])
+    gw2 = max(FLOOR_W * FLOOR_W, k * k * sc["sw2"])
+    gf2 = max(FLOOR_F * FLOOR_F, k * k * sc["sf2"])
     dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
-    if flags[S_NHELD] > 0:
+    if sc["held"] > 0:
         # the held sample: a spike if this one is back near the last propagated sample,
         # else motion, caught up now
-        cw, cf = flags[S_NHELD] & 1 != 0 and dw2 > gw2, flags[S_NHELD] & 2 != 0 and df2 > gf2
+        cw, cf = sc["held"] & 1 != 0 and dw2 > gw2, sc["held"] & 2 != 0 and df2 > gf2
         if cw or cf:
-            _catch_up(cfg, x, flags, x[X_DTPEND], cw, cf)
+            _catch_up(cfg, x, flags, sc, sc["dt_pend"], cw, cf)
             inn[cfg["log_off"][INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
             dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
-        dropw, dropf = flags[S_NHELD] & 1 != 0 and not cw, flags[S_NHELD] & 2 != 0 and not cf
+        dropw, dropf = sc["held"] & 1 != 0 and not cw, sc["held"] & 2 != 0 and not cf
         if (dropw or dropf) and flags[S_INIT] == 1:
             # a dropped sample may still have been motion: that becomes spread (X_DW, X_DF
             # are the kernel's to overwrite at this sample); a rotation as large as the gate
@@ -180,30 +198,30 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
             # (what vibration drops: the GNSS takes it back without touching the attitude)
             pw2 = 0.0
             for a in range(3):
-                pw2 += x[X_PEND + a] ** 2
+                pw2 += sc["pend"][a] ** 2
             sw = math.sqrt(min(1.0, gw2 / pw2)) if dropw and pw2 > 0 else 0.0
             sf = 1.0 if dropf else 0.0
             for a in range(3):
-                x[X_DW + a] = sw * x[X_PEND + a]
-                x[X_DF + a] = sf * x[X_PEND + 3 + a]
-            add_unmeasured_motion(cfg, x, P, work, x[X_DTPEND])
+                x[X_DW + a] = sw * sc["pend"][a]
+                x[X_DF + a] = sf * sc["pend"][3 + a]
+            add_unmeasured_motion(cfg, x, P, work, sc["dt_pend"])
     gr, ar = prm["gyro_range"], prm["accel_range"]
     beyond_w, beyond_f = False, False
     for a in range(3):
         beyond_w = beyond_w or abs(row[a]) > gr
         beyond_f = beyond_f or abs(row[3 + a]) > ar
     if flags[S_INIT] == 1 and 0 < dt <= GAP:
-        _clipped(cfg, x, flags, P, work, row, dt)
+        _clipped(cfg, x, flags, sc, P, work, row, dt)
     hold_w, hold_f = beyond_w, beyond_f
     if k > 0 and 0 < dt <= GAP:
         hold_w = hold_w or dw2 > gw2
         hold_f = hold_f or df2 > gf2
         # the recent changes' mean square, each change counted at most at the gate
         g = dt / TAU_CHANGES
-        x[X_SW2] += g * (min(dw2, gw2) - x[X_SW2])
-        x[X_SF2] += g * (min(df2, gf2) - x[X_SF2])
+        sc["sw2"] += g * (min(dw2, gw2) - sc["sw2"])
+        sc["sf2"] += g * (min(df2, gf2) - sc["sf2"])
     if not (hold_w or hold_f):
-        flags[S_NHELD] = 0
+        sc["held"] = 0
         return False
     nu = work[W_NU]
     nu[0], nu[1], nu[2] = math.sqrt(dw2), math.sqrt(df2), 0.0
@@ -214,8 +232,8 @@ def screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
         held[a] = x[X_WLAST + a] if hold_w else row[a]
         held[3 + a] = x[X_FLAST + a] if hold_f else row[3 + a]
         # the excess to catch up if the next sample says it was motion (never one beyond range)
-        x[X_PEND + a] = 0.0 if beyond_w else row[a] - held[a]
-        x[X_PEND + 3 + a] = 0.0 if beyond_f else row[3 + a] - held[3 + a]
-    x[X_DTPEND] = dt
-    flags[S_NHELD] = (1 if hold_w else 0) + (2 if hold_f else 0)
+        sc["pend"][a] = 0.0 if beyond_w else row[a] - held[a]
+        sc["pend"][3 + a] = 0.0 if beyond_f else row[3 + a] - held[3 + a]
+    sc["dt_pend"] = dt
+    sc["held"] = (1 if hold_w else 0) + (2 if hold_f else 0)
     return True

@@ -59,7 +59,7 @@ from windahrs.aid.tas import (
 )
 from windahrs.core import pool
 from windahrs.core.events import sample_ok
-from windahrs.core.imu_screen import screen_imu
+from windahrs.core.imu_screen import screen_imu, screen_state
 from windahrs.core.kalman import grown_logs, log_layout, read_airspeed_scale, read_held, read_logs, read_resets
 from windahrs.core.layout import (
     _JIT_CORE,
@@ -393,11 +393,12 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
 
 
 @njit(inline="always", **_JIT_CORE)
-def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row):
+def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, sc, rs, t, row):
     """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
     screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid
-    sources. rs: the rest detector's record (aid.rest.REST)."""
-    if screen_imu(cfg, prm, x, flags, P, inn, acc, work, t, row):
+    sources. sc, rs: the records of the IMU screen (core.imu_screen.SCREEN) and of the rest
+    detector (aid.rest.REST)."""
+    if screen_imu(cfg, prm, x, flags, sc, P, inn, acc, work, t, row):
         row = work[W_IMU]  # the sample propagated in its place
     dt = imu_clock(cfg, prm, x, flags, P, work, t, row)
     if dt < 0:
@@ -573,8 +574,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
     types, so numba compiles this loop once for runs, batches, streams and the smoother."""
     k = np.int64(-1)
     smooth = sm.aux.shape[0] > 0
-    cfg, prm, x, flags, P, work, sup, inn, acc, rest = st  # once: each extraction costs refcounting
-    rs = rest[0]  # (the aid sources' records: their fields are read and written in place)
+    cfg, prm, x, flags, P, work, sup, inn, acc, screen, rest = st  # once: each extraction costs refcounting
+    sc, rs = screen[0], rest[0]  # (the aid sources' records: their fields are read and written in place)
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
         kind = kinds[i]
@@ -583,11 +584,11 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
         if kind == EVENT_IMU:
             k += 1
             if smooth:
-                record_pre(sm, k, x, flags, t, row, sample_ok(kind, row))
+                record_pre(sm, k, x, flags, sc, t, row, sample_ok(kind, row))
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
         elif kind == EVENT_IMU:
-            step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row)
+            step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, sc, rs, t, row)
         elif kind == EVENT_MAG:
             step_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
         elif kind == EVENT_GNSS:
@@ -598,7 +599,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
             if smooth:
-                record_post(sm, k, cfg, x, flags, P)
+                record_post(sm, k, cfg, x, flags, sc, P)
     if rec:  # (the covariance was recorded around the caches: visible to every thread now)
         stream_fence()
 
@@ -823,6 +824,7 @@ def make_state(
         sup=np.zeros((2, NMAX), dtype=np.int64),
         inn=np.empty((total, 5)),
         acc=np.zeros(total, dtype=np.bool_),
+        screen=screen_state(),
         rest=rest_state(),
     )
 

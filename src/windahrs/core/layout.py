@@ -313,32 +313,28 @@ X_DF = 61  # (3,) change of the specific force sample since the previous one, m/
 X_AINS = 64  # (3,) low-passed GNSS acceleration, NED, over the INS's mean specific force's time (X_FBAR)
 X_TOK = 67  # (N_SENSORS,) time each aid source last agreed with the state (NaN: not yet initialised)
 X_AVAR = X_TOK + N_SENSORS  # the accelerometer's on-line noise variance, (m/s^2)^2 per axis
-X_SW2 = X_AVAR + 1  # mean square of the angular rate's sample-to-sample change, (rad/s)^2 (imu_screen)
-X_SF2 = X_AVAR + 2  # ... of the specific force's, (m/s^2)^2
-X_PEND = X_AVAR + 3  # (6,) the held sample's excess over the propagated one: w (rad/s), f (m/s^2)
-X_DTPEND = X_AVAR + 9  # its step, s
-X_ASC = X_AVAR + 10  # (3,) airspeed scale estimator: wind N, E m/s, inverse scale (measured / true)
-X_ASCP = X_AVAR + 13  # (9,) its covariance, row-major
-X_TASC = X_AVAR + 22  # time of its last update, s
-X_NAVAR = X_AVAR + 23  # samples averaged into X_AVAR so far
-X_JLAG = X_AVAR + 24  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
+X_ASC = X_AVAR + 1  # (3,) airspeed scale estimator: wind N, E m/s, inverse scale (measured / true)
+X_ASCP = X_AVAR + 4  # (9,) its covariance, row-major
+X_TASC = X_AVAR + 13  # time of its last update, s
+X_NAVAR = X_AVAR + 14  # samples averaged into X_AVAR so far
+X_JLAG = X_AVAR + 15  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
-X_NGAIN = X_AVAR + 33  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
-X_JMAG = X_AVAR + 35  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
+X_NGAIN = X_AVAR + 24  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
+X_JMAG = X_AVAR + 26  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
 #: (2,) each: the last step dt s of a low-pass at the IMU's (or magnetometer's) rate and its
 #: gain (core.predict.steady_gain): the gravity aid's mean, the INS's mean specific force
 #: (aid.gnss_vel), the magnetometer's mean
-X_FGAIN = X_AVAR + 44
-X_LGAIN = X_AVAR + 46
-X_MGAIN = X_AVAR + 48
-X_TINIT = X_AVAR + 50  # when the filter initialised, s (NaN: not yet): Estimate.init_index
-X_RM = X_AVAR + 51  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
-X_NRM = X_AVAR + 54  # samples in it (0: no start check pending)
-X_NFUSE = X_AVAR + 55  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
-X_TGFUSE = X_AVAR + 56  # when it was last fused, s
-X_NMFUSE = X_AVAR + 57  # the same for the magnetometer's mean (aid.mag)
-X_TMFUSE = X_AVAR + 58
-N_X = X_AVAR + 59
+X_FGAIN = X_AVAR + 35
+X_LGAIN = X_AVAR + 37
+X_MGAIN = X_AVAR + 39
+X_TINIT = X_AVAR + 41  # when the filter initialised, s (NaN: not yet): Estimate.init_index
+X_RM = X_AVAR + 42  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
+X_NRM = X_AVAR + 45  # samples in it (0: no start check pending)
+X_NFUSE = X_AVAR + 46  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
+X_TGFUSE = X_AVAR + 47  # when it was last fused, s
+X_NMFUSE = X_AVAR + 48  # the same for the magnetometer's mean (aid.mag)
+X_TMFUSE = X_AVAR + 49
+N_X = X_AVAR + 50
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -357,10 +353,8 @@ S_WIN = 12  # the initialisation window has a sample
 S_ASC = 13  # the airspeed scale estimator is initialised
 S_AINS = 14  # X_AINS is set
 K_SKIP = 15  # (4,) NaN samples skipped: imu, mag, gnss, air
-S_NHELD = 19  # the last IMU sample's held parts (imu_screen): 1 its angular rate, 2 its specific force, 3 both
-S_HEADLESS = 20  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
-S_CLIP = 21  # (6,) samples in a row each IMU axis has repeated one large magnitude (imu_screen)
-L_CNT = 27  # (N_SENSORS,) log rows used per sensor
+S_HEADLESS = 19  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
+L_CNT = 20  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 
@@ -407,4 +401,5 @@ class KernelState(NamedTuple):
     acc: NDArray[np.bool_]  # (L,) accepted
     # the aid sources' private state: (1,) arrays of their records, declared next to them
     # (compiled code takes element 0, whose fields it reads and writes in place)
+    screen: NDArray[np.void]  # core.imu_screen.SCREEN
     rest: NDArray[np.void]  # aid.rest.REST

@@ -104,9 +104,7 @@ from windahrs.core.layout import (
     N_WORK,
     N_X,
     NMAX,
-    S_CLIP,
     S_INIT,
-    S_NHELD,
     S_WPEND,
     W_M,
     X_BA,
@@ -182,18 +180,19 @@ def no_smoothing() -> SmoothRecord:
 
 
 @njit(**_JIT)
-def record_pre(sm, k, x, flags, t, row, ok):
+def record_pre(sm, k, x, flags, sc, t, row, ok):
     """At IMU sample k (t s, row = [w_b, f_b]; ok: finite), before its step: what the
-    prediction will use and whether the step can be one of the chain's."""
+    prediction will use and whether the step can be one of the chain's (sc: the IMU
+    screen's record, core.imu_screen.SCREEN)."""
     aux = sm[2]
     aux[k, A_DT] = t - x[X_TIMU]
     for a in range(6):
         aux[k, A_ROW + a] = row[a]
-    aux[k, A_PRE] = 1.0 if (ok and flags[S_INIT] == 1 and flags[S_NHELD] == 0) else 0.0
+    aux[k, A_PRE] = 1.0 if (ok and flags[S_INIT] == 1 and sc["held"] == 0) else 0.0
 
 
 @njit(**_JIT)
-def record_post(sm, k, cfg, x, flags, P):
+def record_post(sm, k, cfg, x, flags, sc, P):
     """The posterior at IMU sample k (after every event before the next IMU sample)."""
     nom, Pr, aux = sm
     aux[k, A_INIT] = float(flags[S_INIT])
@@ -202,7 +201,7 @@ def record_post(sm, k, cfg, x, flags, P):
     aux[k, A_WPEND] = float(flags[S_WPEND])
     clip = 0.0
     for a in range(6):
-        if flags[S_CLIP + a] >= CLIP_SAMPLES - 1:
+        if sc["clip"][a] >= CLIP_SAMPLES - 1:
             clip = 1.0
     aux[k, A_CLIP] = clip
     for a in range(3):
