@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from windahrs.core.kalman import (
     _log,
@@ -47,15 +48,12 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_ASPD,
-    S_ASC,
     W_NU,
-    X_ASC,
-    X_ASCP,
     X_Q,
-    X_TASC,
     X_V,
     X_VAIR,
     X_VGNSS,
+    record_dtype,
 )
 from windahrs.core.quat import (
     _dcm9,
@@ -76,12 +74,27 @@ TAS_GATE = 4.0
 #: Gate of its sideslip, sigmas: PX4 ASPD_BETA_GATE (1).
 BETA_GATE = 1.0
 
+#: The estimator's state (KernelState.asc, a (1,) array of :data:`ASC`): float64 fields, then
+#: an int64 flag, as the flat state and flags they came from. (name, size, meaning)
+ASC_FIELDS: tuple[tuple[str, int, str], ...] = (
+    ("k", 3, "wind N, E m/s, inverse scale (measured / true)"),
+    ("P", 9, "its covariance, row-major"),
+    ("t", 1, "time of its last update, s"),
+)
+ASC_FLAG_FIELDS: tuple[tuple[str, int, str], ...] = (("ready", 1, "1: initialised"),)
+ASC = np.dtype(record_dtype(ASC_FIELDS).descr + record_dtype(ASC_FLAG_FIELDS, np.int64).descr)
+
+
+def asc_state() -> NDArray[np.void]:
+    """A fresh estimator state: not initialised."""
+    return np.zeros(1, ASC)
+
 
 @njit(**_JIT_CORE)
-def _update(x, H0, H1, H2, nu, r, gate):
+def _update(ac, H0, H1, H2, nu, r, gate):
     """One scalar update of the 3-state estimator; H = (H0, H1, H2). Returns
-    (accepted, nis)."""
-    P = x[X_ASCP : X_ASCP + 9]
+    (accepted, nis). ac: the estimator's record (:data:`ASC`)."""
+    P = ac["P"]
     ph0 = P[0] * H0 + P[1] * H1 + P[2] * H2  # P H^T
     ph1 = P[3] * H0 + P[4] * H1 + P[5] * H2
     ph2 = P[6] * H0 + P[7] * H1 + P[8] * H2
@@ -89,9 +102,9 @@ def _update(x, H0, H1, H2, nu, r, gate):
     nis = nu * nu / s
     if nis > gate * gate:
         return False, nis
-    x[X_ASC] += ph0 / s * nu
-    x[X_ASC + 1] += ph1 / s * nu
-    x[X_ASC + 2] += ph2 / s * nu
+    ac["k"][0] += ph0 / s * nu
+    ac["k"][1] += ph1 / s * nu
+    ac["k"][2] += ph2 / s * nu
     # P <- P - K S K^T = P - (P H^T)(P H^T)^T / s: symmetric by construction (PX4's
     # WindEstimator updates its 3x3 P in this form too)
     ph = (ph0, ph1, ph2)
@@ -102,58 +115,58 @@ def _update(x, H0, H1, H2, nu, r, gate):
 
 
 @njit(**_JIT_CORE)
-def _init(prm, x, flags, c, vn, ve, tas, t):
+def _init(prm, x, ac, c, vn, ve, tas, t):
     """Initialise from the sample's air velocity (X_VAIR, scale 1) at the attitude c (C_nb
     row-major) and the ground velocity vn, ve m/s."""
     ax, ay, az = x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2]
     an = c[0] * ax + c[1] * ay + c[2] * az
     ae = c[3] * ax + c[4] * ay + c[5] * az
-    x[X_ASC], x[X_ASC + 1], x[X_ASC + 2] = vn - an, ve - ae, 1.0
+    ac["k"][0], ac["k"][1], ac["k"][2] = vn - an, ve - ae, 1.0
     pk = prm["asc_init_var"]
     own = prm["asc_tas_var"] + tas * tas * prm["asc_beta_var"]
-    P = x[X_ASCP : X_ASCP + 9]
+    P = ac["P"]
     P[0], P[1], P[3], P[4] = an * an * pk + own, an * ae * pk, an * ae * pk, ae * ae * pk + own
     P[2], P[6], P[5], P[7] = an * pk, an * pk, ae * pk, ae * pk
     P[8] = pk
-    x[X_TASC] = t
-    flags[S_ASC] = 1
+    ac["t"] = t
+    ac["ready"] = 1
 
 
 @njit(**_JIT_CORE)
-def airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, beta, syn, use_v):
+def airspeed_scale_step(prm, x, flags, ac, inn, acc, cfg, work, t, tas, beta, syn, use_v):
     """The estimator at an air sample: tas m/s measured, beta rad the sideslip vane's (NaN:
     none; syn: fuse a zero sideslip then), at t s; X_VAIR holds the sample's air velocity
     at scale 1. Returns (the airspeed corrected, tas / k, m/s; the variance its scale adds
-    (m/s)^2); logs the scale in the "aspd" log."""
+    (m/s)^2); logs the scale in the "aspd" log. ac: the estimator's record (:data:`ASC`)."""
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     vv = X_V if use_v else X_VGNSS
     vn, ve, vd = x[vv], x[vv + 1], x[vv + 2]
-    if flags[S_ASC] == 0:
-        _init(prm, x, flags, c, vn, ve, tas, t)
-    P = x[X_ASCP : X_ASCP + 9]
-    dt = t - x[X_TASC]
+    if ac["ready"] == 0:
+        _init(prm, x, ac, c, vn, ve, tas, t)
+    P = ac["P"]
+    dt = t - ac["t"]
     if dt > 0:
         P[0] += prm["asc_wn2"] * dt
         P[4] += prm["asc_wn2"] * dt
         P[8] += prm["asc_kn2"] * dt
-        x[X_TASC] = t
+        ac["t"] = t
     # airspeed: tas = k |v - W|
-    un, ue = vn - x[X_ASC], ve - x[X_ASC + 1]
+    un, ue = vn - ac["k"][0], ve - ac["k"][1]
     n = max(math.sqrt(un * un + ue * ue + vd * vd), 1e-3)
-    k = x[X_ASC + 2]
+    k = ac["k"][2]
     nu_tas = tas - k * n
-    ok, nis = _update(x, -k * un / n, -k * ue / n, n, nu_tas, prm["asc_tas_var"], TAS_GATE)
+    ok, nis = _update(ac, -k * un / n, -k * ue / n, n, nu_tas, prm["asc_tas_var"], TAS_GATE)
     # sideslip: beta = V_y / V_x of C_bn (v - W)
     if syn or math.isfinite(beta):
-        un, ue = vn - x[X_ASC], ve - x[X_ASC + 1]
+        un, ue = vn - ac["k"][0], ve - ac["k"][1]
         ux = c[0] * un + c[3] * ue + c[6] * vd
         uy = c[1] * un + c[4] * ue + c[7] * vd
         if ux > 1.0:  # flying forward through the air
             b = beta if math.isfinite(beta) else 0.0
             h0 = -(c[1] / ux - uy * c[0] / (ux * ux))
             h1 = -(c[4] / ux - uy * c[3] / (ux * ux))
-            _update(x, h0, h1, 0.0, b - uy / ux, prm["asc_beta_var"], BETA_GATE)
-    k = max(x[X_ASC + 2], 0.1)  # (a pitot reading a tenth of the airspeed is no pitot)
+            _update(ac, h0, h1, 0.0, b - uy / ux, prm["asc_beta_var"], BETA_GATE)
+    k = max(ac["k"][2], 0.1)  # (a pitot reading a tenth of the airspeed is no pitot)
     nu = work[W_NU]
     nu[0], nu[1], nu[2] = 1.0 / k, math.sqrt(max(P[8], 0.0)) / (k * k), nu_tas
     _log(cfg, flags, inn, acc, nu, np.int64(INN_ASPD), t, np.int64(3), nis, ok)

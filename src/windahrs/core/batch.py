@@ -59,14 +59,14 @@ __all__ = ["chunk_size", "run_batch"]
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _run_packed(
-    cfg, prm, x, flags, sup, screen, rest,
+    cfg, prm, x, flags, sup, screen, rest, asc,
     P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
     t_ev, kinds, vals, e_off,
     q, bg, v, w, n_off, cov, c_off, c_rows, dims,
     order, done, rec, sm,
 ):  # fmt: skip
     """Run ``order``'s runs in parallel, each through :func:`run_events` with recording.
-    cfg, prm, x, flags (R, ...), sup (R, 2, NMAX) and the aid sources' records screen, rest (R, 1):
+    cfg, prm, x, flags (R, ...), sup (R, 2, NMAX) and the aid sources' records screen, rest, asc (R, 1):
     the runs' fixed-size state records;
     P, work (flat): run r's covariance (p_n[r], p_n[r]) at p_off[r], its scratch (rows,
     w_cols[r]) at w_off[r]; inn (L, 5), acc (L,): its logs in rows l_off[r]:l_off[r + 1];
@@ -95,6 +95,7 @@ def _run_packed(
             acc[l_off[r] : l_off[r + 1]],
             screen[r],
             rest[r],
+            asc[r],
         )
         out_cov = cov[c_off[r] : c_off[r + 1]].reshape((c_rows[r], d, d))
         run_events(
@@ -121,8 +122,8 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
     """The runs' arrays packed end to end (the arguments of :func:`_run_packed`, without
     ``order``), and the runs with their states and outputs replaced by views of them."""
     sts = [r.st for r in runs]
-    cfg, prm, x, flags, sup, screen, rest = (
-        np.stack([getattr(s, f) for s in sts]) for f in ("cfg", "prm", "x", "flags", "sup", "screen", "rest")
+    cfg, prm, x, flags, sup, screen, rest, asc = (
+        np.stack([getattr(s, f) for s in sts]) for f in ("cfg", "prm", "x", "flags", "sup", "screen", "rest", "asc")
     )
     p_n = np.array([s.P.shape[0] for s in sts], dtype=np.int64)
     p_off = _offsets([s.P.size for s in sts])
@@ -172,6 +173,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             acc=acc[l0:l1],
             screen=screen[i],
             rest=rest[i],
+            asc=asc[i],
         )
         views.append(r._replace(
             st=st,
@@ -181,7 +183,7 @@ def _pack(runs: list[PreparedRun]) -> tuple[tuple[object, ...], list[PreparedRun
             w=w[n0:n1],
             cov=cov[c_off[i] : c_off[i + 1]].reshape(r.cov.shape),
         ))  # fmt: skip
-    args = (cfg, prm, x, flags, sup, screen, rest, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
+    args = (cfg, prm, x, flags, sup, screen, rest, asc, P, p_off, p_n, work, w_off, w_cols, inn, acc, l_off,
             t_ev, kinds, vals, e_off, q, bg, v, w, n_off, cov, c_off, c_rows, dims)  # fmt: skip
     return args, views
 

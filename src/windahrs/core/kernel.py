@@ -28,6 +28,7 @@ from windahrs.aid.air_velocity import (
 )
 from windahrs.aid.airspeed_scale import (
     airspeed_scale_step,
+    asc_state,
 )
 from windahrs.aid.aoa import (
     fuse_aoa,
@@ -452,12 +453,13 @@ def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 
 
 @njit(inline="always", **_JIT_CORE)
-def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
+def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, tas, aoa, beta):
     """An air-data sample: tas m/s (finite), aoa and sideslip rad (NaN: no vanes), at t s,
     to its aid sources: the air-data vector with both vanes (air_mode "vector", or "auto"),
     else true airspeed, the angle of attack of a vane without a sideslip vane ("vector" or
     "auto") and (synthetic_sideslip) a zero sideslip. With airspeed_scale, the airspeed is
-    first corrected by the scale estimated on line (:mod:`windahrs.aid.airspeed_scale`)."""
+    first corrected by the scale estimated on line (:mod:`windahrs.aid.airspeed_scale`; ac: its
+    record, ASC)."""
     vanes, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
     kind = cfg["kind"]
     if flags[S_INIT] == 0 or kind == KIND_MEKF or cfg["air_mode"] == AIR_OFF:
@@ -472,7 +474,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, aoa, beta):
     if cfg["airspeed_scale"] == 1:
         bv = beta if cfg["air_mode"] != AIR_AIRSPEED else np.nan  # the sideslip vane's, when fused
         syn = cfg["synthetic_sideslip"] == 1
-        tc, var_scale = airspeed_scale_step(prm, x, flags, inn, acc, cfg, work, t, tas, bv, syn, use_v)
+        tc, var_scale = airspeed_scale_step(prm, x, flags, ac, inn, acc, cfg, work, t, tas, bv, syn, use_v)
         f = tc / tas if tas > 0 else 1.0
         x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = f * x[X_VAIR], f * x[X_VAIR + 1], f * x[X_VAIR + 2]
         tas = tc
@@ -574,8 +576,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
     types, so numba compiles this loop once for runs, batches, streams and the smoother."""
     k = np.int64(-1)
     smooth = sm.aux.shape[0] > 0
-    cfg, prm, x, flags, P, work, sup, inn, acc, screen, rest = st  # once: each extraction costs refcounting
-    sc, rs = screen[0], rest[0]  # (the aid sources' records: their fields are read and written in place)
+    cfg, prm, x, flags, P, work, sup, inn, acc, screen, rest, asc = st  # once: each extraction costs refcounting
+    sc, rs, ac = screen[0], rest[0], asc[0]  # (the aid sources' records: their fields are read and written in place)
     n_ev = t_ev.shape[0]
     for i in range(n_ev):
         kind = kinds[i]
@@ -594,7 +596,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
         elif kind == EVENT_GNSS:
             step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row)
         elif kind == EVENT_AIR:
-            step_air(cfg, prm, x, flags, P, work, sup, inn, acc, t, row[0], row[1], row[2])
+            step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, row[0], row[1], row[2])
         # IMU sample k gets the state after the last event before the next IMU sample
         if rec and k >= 0 and (i + 1 == n_ev or kinds[i + 1] == EVENT_IMU):
             record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
@@ -826,6 +828,7 @@ def make_state(
         acc=np.zeros(total, dtype=np.bool_),
         screen=screen_state(),
         rest=rest_state(),
+        asc=asc_state(),
     )
 
 

@@ -313,28 +313,25 @@ X_DF = 61  # (3,) change of the specific force sample since the previous one, m/
 X_AINS = 64  # (3,) low-passed GNSS acceleration, NED, over the INS's mean specific force's time (X_FBAR)
 X_TOK = 67  # (N_SENSORS,) time each aid source last agreed with the state (NaN: not yet initialised)
 X_AVAR = X_TOK + N_SENSORS  # the accelerometer's on-line noise variance, (m/s^2)^2 per axis
-X_ASC = X_AVAR + 1  # (3,) airspeed scale estimator: wind N, E m/s, inverse scale (measured / true)
-X_ASCP = X_AVAR + 4  # (9,) its covariance, row-major
-X_TASC = X_AVAR + 13  # time of its last update, s
-X_NAVAR = X_AVAR + 14  # samples averaged into X_AVAR so far
-X_JLAG = X_AVAR + 15  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
+X_NAVAR = X_AVAR + 1  # samples averaged into X_AVAR so far
+X_JLAG = X_AVAR + 2  # (9,) row-major: how a gyro-bias error moves the low-passed specific force
 #   (d X_FBAR / d b_g, the rotation error it accumulates over the mean's age; aid.gravity)
-X_NGAIN = X_AVAR + 24  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
-X_JMAG = X_AVAR + 26  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
+X_NGAIN = X_AVAR + 11  # (2,) the noise low-pass's last step dt s and its gain (core.predict.track_accel_noise)
+X_JMAG = X_AVAR + 13  # (9,) row-major: the same for the low-passed magnetic field X_MBAR (aid.mag)
 #: (2,) each: the last step dt s of a low-pass at the IMU's (or magnetometer's) rate and its
 #: gain (core.predict.steady_gain): the gravity aid's mean, the INS's mean specific force
 #: (aid.gnss_vel), the magnetometer's mean
-X_FGAIN = X_AVAR + 35
-X_LGAIN = X_AVAR + 37
-X_MGAIN = X_AVAR + 39
-X_TINIT = X_AVAR + 41  # when the filter initialised, s (NaN: not yet): Estimate.init_index
-X_RM = X_AVAR + 42  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
-X_NRM = X_AVAR + 45  # samples in it (0: no start check pending)
-X_NFUSE = X_AVAR + 46  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
-X_TGFUSE = X_AVAR + 47  # when it was last fused, s
-X_NMFUSE = X_AVAR + 48  # the same for the magnetometer's mean (aid.mag)
-X_TMFUSE = X_AVAR + 49
-N_X = X_AVAR + 50
+X_FGAIN = X_AVAR + 22
+X_LGAIN = X_AVAR + 24
+X_MGAIN = X_AVAR + 26
+X_TINIT = X_AVAR + 28  # when the filter initialised, s (NaN: not yet): Estimate.init_index
+X_RM = X_AVAR + 29  # (3,) running mean of the specific force since the start, body (aid.gravity.start_check)
+X_NRM = X_AVAR + 32  # samples in it (0: no start check pending)
+X_NFUSE = X_AVAR + 33  # IMU samples the gravity aid's mean took since it was last fused (aid.gravity)
+X_TGFUSE = X_AVAR + 34  # when it was last fused, s
+X_NMFUSE = X_AVAR + 35  # the same for the magnetometer's mean (aid.mag)
+X_TMFUSE = X_AVAR + 36
+N_X = X_AVAR + 37
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -350,11 +347,10 @@ S_SEQ = 9  # sensors that have logged so far
 S_FBAR = 10  # the low-passed specific force is set (the gravity aid source's, or the INS's)
 S_MBAR = 11  # the low-passed magnetic field is set
 S_WIN = 12  # the initialisation window has a sample
-S_ASC = 13  # the airspeed scale estimator is initialised
-S_AINS = 14  # X_AINS is set
-K_SKIP = 15  # (4,) NaN samples skipped: imu, mag, gnss, air
-S_HEADLESS = 19  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
-L_CNT = 20  # (N_SENSORS,) log rows used per sensor
+S_AINS = 13  # X_AINS is set
+K_SKIP = 14  # (4,) NaN samples skipped: imu, mag, gnss, air
+S_HEADLESS = 18  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
+L_CNT = 19  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
 N_FLAGS = L_FIRST + N_SENSORS
 
@@ -403,3 +399,4 @@ class KernelState(NamedTuple):
     # (compiled code takes element 0, whose fields it reads and writes in place)
     screen: NDArray[np.void]  # core.imu_screen.SCREEN
     rest: NDArray[np.void]  # aid.rest.REST
+    asc: NDArray[np.void]  # aid.airspeed_scale.ASC
