@@ -62,9 +62,12 @@ def test_a_start_sample_turned_by_vibration_is_caught_by_the_start_check() -> No
     and restarts the mean from the plain one (without it the first sample's share keeps the
     tilt 1-2 deg off for the rest of this flight)."""
     flight = _first_sample_turned(wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0), 60.0, 4.5)
-    said = r"mekf: accel mean over the first 3\.0 s off the state .*the start check\); at t = 3\.0\d s attitude"
+    # (gated_start off: a start sample of 4.5 m/s^2 is off the gravity gate, which the default
+    # does not start the mean from: test_a_start_sample_off_the_gravity_gate_is_averaged_out)
+    said = (r"mekf:gated_start=false: accel mean over the first 3\.0 s off the state .*the start check\); "
+            r"at t = 3\.0\d s attitude")
     with pytest.warns(EstimatorWarning, match=said):
-        est = wa.estimator("mekf").run(flight)
+        est = wa.estimator("mekf:gated_start=false").run(flight)
     assert est.resets["accel"][0, 0] == pytest.approx(3.0, abs=0.02)
     assert np.degrees(est.resets["accel"][0, 1]) > 45.0
     tilt = np.degrees(attitude_errors(est, flight).tilt)
@@ -72,8 +75,27 @@ def test_a_start_sample_turned_by_vibration_is_caught_by_the_start_check() -> No
     assert tilt[est.t > 6.0].max() < 1.0  # ... and level after it
     assert "tilt" not in est.alerts
     with pytest.warns(EstimatorWarning):
-        late = wa.estimator("mekf:start_check=false").run(flight)
+        late = wa.estimator("mekf:start_check=false:gated_start=false").run(flight)
     assert late.resets["accel"][0, 0] >= 5.0  # the timeout's reset instead
+
+
+def test_a_start_sample_off_the_gravity_gate_is_averaged_out() -> None:
+    """The same start sample (4.5 m/s^2, off the gravity gate) with the default gated_start:
+    the first second's samples are fused themselves, so the state leaves it within half a
+    second, with no reset; the gyro bias is left alone while the start's error is corrected."""
+    flight = _first_sample_turned(wa.simulate("quadrotor", seed=3, wind=0.0, duration=20.0), 60.0, 4.5)
+    est = wa.estimator("mekf").run(flight)
+    assert est.resets == {}
+    tilt = np.degrees(attitude_errors(est, flight).tilt)
+    assert tilt[0] > 55.0  # the start sample's attitude ...
+    assert tilt[est.t > 0.5].max() < 3.0  # ... left within half a second (measured 2.4 deg at most)
+    assert tilt[est.t > 6.0].mean() < 1.0  # (measured 0.40)
+
+
+def test_a_start_within_the_gravity_gate_is_unchanged_by_gated_start() -> None:
+    flight = wa.simulate("quadrotor", seed=3, wind=8.0, duration=8.0)
+    on, off = wa.estimator("mekf").run(flight), wa.estimator("mekf:gated_start=false").run(flight)
+    np.testing.assert_array_equal(on.q_nb, off.q_nb)
 
 
 def test_the_start_check_leaves_a_good_start_alone() -> None:

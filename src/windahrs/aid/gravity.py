@@ -16,11 +16,17 @@ every IMU sample, each fusion with R / k for the k samples it stands for, while 
 small (:func:`windahrs.core.kalman.samples_to_fuse`); its log then has a row per fusion, the NIS per sample.
 Innovation key: ``"accel"`` (3 rows). Parameters: accel_sigma, accel_noise_online,
 accel_noise_mean_start, accel_norm_gate, accel_compensation, accel_lowpass,
-lowpass_bias, accel_fuse_rate, gate_accel, reset_timeout, start_check.
+lowpass_bias, accel_fuse_rate, gate_accel, reset_timeout, start_check, gated_start.
 
 Start check (:func:`start_check`): accel_lowpass seconds after the start, the plain mean of
 every sample since then is held against the state's gravity by the lost-gravity test, and a
 start that failed it is levelled at once.
+
+Start off the gate (gated_start, :func:`start_off_gate`): after a start whose sample the
+gravity gate rejects, each sample is fused rather than the mean for GATED_START_SAMPLES_S,
+the update leaves the gyro bias as it is for GATED_START_BIAS_TAUS accel_lowpass
+(:func:`windahrs.core.kalman._keep_bias`), and the start check restarts the mean from the
+plain one.
 """
 
 from __future__ import annotations
@@ -60,7 +66,9 @@ from windahrs.core.layout import (
     X_FGAIN,
     X_JLAG,
     X_NFUSE,
+    X_NOBG,
     X_NRM,
+    X_OFFSTART,
     X_Q,
     X_RM,
     X_TGFUSE,
@@ -102,6 +110,24 @@ ACCEL_TURN_COS = 1.0 / (1.0 + ACCEL_TURN_NORM)
 LAG_PARAMS = ("lowpass_bias",)
 #: ... and the mean fused at a lower rate (the error-state filters: core.kalman.samples_to_fuse).
 FUSE_RATE_PARAMS = ("accel_fuse_rate",)
+#: ... and a start off the gravity gate (the error-state filters: the update that keeps the gyro bias,
+#: core.kalman._keep_bias).
+GATED_START_PARAMS = ("gated_start",)
+
+#: A start whose sample the gravity gate rejects (gated_start): for this long, s, the gravity
+#: aid fuses each sample, not the mean, so that the state takes the plain mean of the samples
+#: (VQF's start of its low-pass) rather than the start's one sample, which the mean holds with
+#: weight exp(-t / accel_lowpass): a rotor's vibration of several m/s^2 averages out over about
+#: a hundred samples, and a multirotor's attitude loop (about 1 Hz) over a second (the
+#: init_window rationale, EskfParams). At most accel_lowpass, where the start check ends it
+#: and restarts the mean from the plain one (start_check).
+GATED_START_SAMPLES_S = 1.0
+#: ... and for this many accel_lowpass from the start the gravity update leaves the gyro bias
+#: as it is (core.kalman._keep_bias): the state's start is off by the start sample's error,
+#: and the mean's drift away from that sample is no drift of the state. VQF clips its bias
+#: correction for that reason ("this also effectively limits the harm done by the first
+#: inclination correction step", biasClip 2 deg/s).
+GATED_START_BIAS_TAUS = 2.0
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = (
     "accel_sigma",
@@ -161,6 +187,10 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
         return False
     x[X_NRM] = 0.0  # checked once
     rx, ry, rz = x[X_RM], x[X_RM + 1], x[X_RM + 2]
+    if cfg["gated_start"] == 1 and x[X_OFFSTART] > 0:
+        # after a start sample the gate rejects, the mean goes on from the plain one (VQF's
+        # low-pass state at accel_lowpass), not from its exp(-1) share of that sample
+        x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2] = rx, ry, rz
     rn = math.sqrt(rx * rx + ry * ry + rz * rz)
     if rn <= 0.0 or knows_gravity(-(c[6] * rx + c[7] * ry + c[8] * rz) / rn, rn, g):
         return False
@@ -172,6 +202,16 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
     # deg of tilt 2 s after the reset against 1.5)
     x[X_FBAR], x[X_FBAR + 1], x[X_FBAR + 2] = rx, ry, rz
     return True
+
+
+@njit(inline="always", **_JIT_CORE)
+def start_off_gate(prm, x, f0):
+    """Whether the start's specific force x[f0:f0+3] (one sample, or init_window's mean) is
+    one the gravity gate would reject, its length off gravity by more than accel_norm_gate
+    (gated_start): no reading of gravity to start from (ANSFL path_6's first sample, 0.46 g
+    under rotor vibration, is 37 deg from its first second's mean)."""
+    fn = math.sqrt(x[f0] ** 2 + x[f0 + 1] ** 2 + x[f0 + 2] ** 2)
+    return abs(fn - prm["gravity"]) > prm["accel_norm_gate"] * prm["gravity"]
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -225,13 +265,21 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     # the sample's own length (compensated): a mean's is no measure of acceleration, since a
     # turn's force, turning in the gyro-compensated frame, averages out of it (knows_gravity)
     f_now = math.sqrt((fx - k0) ** 2 + (fy - k1) ** 2 + (fz - k2) ** 2)
+    lag = flags[S_FBAR] == 1  # the measurement is the mean (else the sample)
     if flags[S_FBAR] == 1:  # the mean of the compensated specific force, no compensation after
         a = steady_gain(x, np.int64(X_FGAIN), dt, prm["accel_lowpass"])
         if has_k:
             fx, fy, fz = fx - k0, fy - k1, fz - k2
+        # a start off the gate fuses its first samples themselves (GATED_START_SAMPLES_S)
+        raw = (cfg["gated_start"] == 1 and x[X_OFFSTART] > 0 and x[X_NRM] > 0
+               and t - x[X_TINIT] < GATED_START_SAMPLES_S)
         if x[X_NRM] > 0 and start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
             return
+        sx, sy, sz = fx, fy, fz
         fx, fy, fz = blend_mean(prm, x, a, fx, fy, fz)
+        if raw:
+            fx, fy, fz = sx, sy, sz
+            lag = False
         has_k = False
     sensor = np.int64(INN_ACCEL)
     if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > prm["accel_norm_gate"] * g:
@@ -253,7 +301,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
         return
     var = accel_variance(cfg, prm, x)
     kf = 1.0
-    if flags[S_FBAR] == 1 and cfg["add_form"] == ADD_NONE and prm["accel_fuse_dt"] > 0:  # at accel_fuse_rate
+    if lag and cfg["add_form"] == ADD_NONE and prm["accel_fuse_dt"] > 0:  # at accel_fuse_rate
         tilt_var = P[0, 0] + P[1, 1] + P[2, 2] - att_var_along(P, c[6], c[7], c[8])  # (less the part about down)
         kf = samples_to_fuse(x, np.int64(X_NFUSE), np.int64(X_TGFUSE), t, prm["accel_fuse_dt"], 0.5 * dt,
                              tilt_var, var / (g * g))
@@ -266,7 +314,7 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     _vector_rows(work, sup[0], y0, y1, y2, var)
     nsup = 3
     ib = cfg["i_bg"]
-    if flags[S_FBAR] == 1 and prm["lowpass_bias"] > 0 and ib >= 0 and cfg["add_form"] != ADD_COV:
+    if lag and prm["lowpass_bias"] > 0 and ib >= 0 and cfg["add_form"] != ADD_COV:
         # the mean's samples were rotated into this body frame by the bias-corrected gyro:
         # a bias error db turned each by its integral over the sample's age, so the mean
         # reads y + [y]x (dtheta + J db), J = d mean / d b_g kept by the kernel (tau I at
@@ -280,5 +328,10 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     m, ns = np.int64(3), np.int64(nsup)
     # (gated as one sample: with R / k the innovation's variance is about 1 / k of a sample's,
     # while the mean's innovation is a sample's, so the gate opens by k)
+    keep_bias = cfg["gated_start"] == 1 and x[X_OFFSTART] > 0
+    if keep_bias and t - x[X_TINIT] < GATED_START_BIAS_TAUS * prm["accel_lowpass"]:
+        x[X_NOBG] = 1.0  # a start off the gate: the gyro bias kept (GATED_START_BIAS_TAUS)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_accel2"] * kf)
+    if keep_bias:
+        x[X_NOBG] = 0.0
     per_sample_nis(cfg, flags, inn, sensor, kf)

@@ -60,6 +60,7 @@ from windahrs.core.layout import (
     X_JLAG,
     X_JMAG,
     X_MBAR,
+    X_NOBG,
     X_Q,
     X_V,
     X_W,
@@ -314,6 +315,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
         if cfg["tilt_only"] == 1 and sensor == INN_ACCEL:
             _tilt_only(x, Kt, Gt, dx, S, U, nu)
+        if cfg["gated_start"] == 1 and x[X_NOBG] > 0:  # the gyro bias kept (aid.gravity, gated_start)
+            _keep_bias(cfg, Kt, Gt, dx, U)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
             if n <= TRIANGLE_N:
@@ -509,6 +512,20 @@ def _tilt_only(x, Kt, Gt, dx, S, U, nu):
         dx[j] = k0 * nu[0] + k1 * nu[1] + k2 * nu[2]
         for r in range(3):
             Gt[r, j] = 0.5 * (S[0, r] * k0 + S[1, r] * k1 + S[2, r] * k2) - U[r, j]
+
+
+@njit(inline="always", **_JIT_CORE)
+def _keep_bias(cfg, Kt, Gt, dx, U):
+    """A 3-row update that leaves the gyro bias as it is (error state, columns
+    cfg["i_bg"]..+2): its gain rows set to zero, the bias then a considered state (the
+    Schmidt-Kalman filter's update: the attitude's gain and covariance still account for the
+    bias's spread and correlations, and the bias's own covariance is unchanged). The Joseph
+    form holds for any gain, so G = K S / 2 - U^T follows it: G_b = -U_b."""
+    ib = cfg["i_bg"]
+    for j in range(ib, ib + 3):
+        Kt[0, j], Kt[1, j], Kt[2, j] = 0.0, 0.0, 0.0
+        Gt[0, j], Gt[1, j], Gt[2, j] = -U[0, j], -U[1, j], -U[2, j]
+        dx[j] = 0.0
 
 
 @njit(**_JIT_CORE)

@@ -43,6 +43,7 @@ from windahrs.aid.gnss_vel import (
 )
 from windahrs.aid.gravity import (
     fuse_gravity,
+    start_off_gate,
 )
 from windahrs.aid.mag import (
     _set_mag_reference,
@@ -121,6 +122,7 @@ from windahrs.core.layout import (
     X_MBAR,
     X_NRM,
     X_NWIN,
+    X_OFFSTART,
     X_Q,
     X_RM,
     X_TIMU,
@@ -211,6 +213,8 @@ def _try_init(cfg, prm, x, flags, P, work):
             for a in range(3):
                 x[X_RM + a] = x[f0 + a]
             x[X_NRM] = 1.0
+        if cfg["gated_start"] == 1:  # a start off the gravity gate (aid.gravity.start_off_gate)
+            x[X_OFFSTART] = 1.0 if start_off_gate(prm, x, f0) else 0.0
     flags[S_WPEND] = 1 if (cfg["i_w"] >= 0 and cfg["init_wind_given"] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
         x[X_TOK + s] = x[X_TIMU]
@@ -704,6 +708,8 @@ def make_state(
     cfg["rest"] = _REST[p.rest_detection]
     # the filters that fuse the mean specific force as gravity check its start (not the INS)
     cfg["start_check"] = int(p.start_check and kind != "ins-wind" and p.accel_lowpass > 0 and p.reset_timeout > 0)
+    # ... and a start off its gate (the error-state filters: the update keeps the gyro bias in core.kalman._fuse)
+    cfg["gated_start"] = int(p.gated_start and cfg["start_check"] == 1 and not additive)
     if p.rest_detection == "auto":
         cfg["rest"] = REST_ON if cfg["tilt_only"] == 1 else REST_OFF
     online = p.accel_noise_online and p.accel_lowpass > 0

@@ -150,6 +150,7 @@ CFG_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("rest", 1, "REST_*: fuse the gyro's bias at rest (aid.rest): never, always, until the first motion"),
     ("tilt_only", 1, "1: the gravity update corrects the tilt only (no heading aid: core.kalman._fuse)"),
     ("start_check", 1, "1: the gravity mean's start is checked against a running mean (aid.gravity.start_check)"),
+    ("gated_start", 1, "1: a start off the gravity gate fuses samples first, keeps the gyro bias (aid.gravity)"),
     ("rows", 1, "the columns of the prediction's rows of Phi P (kernel.make_state; predict._predict_es)"),
     ("log_off", N_SENSORS, "first row of each sensor's log"),
     ("log_cap", N_SENSORS, "rows of each sensor's log"),
@@ -331,7 +332,9 @@ X_NFUSE = X_AVAR + 33  # IMU samples the gravity aid's mean took since it was la
 X_TGFUSE = X_AVAR + 34  # when it was last fused, s
 X_NMFUSE = X_AVAR + 35  # the same for the magnetometer's mean (aid.mag)
 X_TMFUSE = X_AVAR + 36
-N_X = X_AVAR + 37
+X_OFFSTART = X_AVAR + 37  # 1: the start's sample was off the gravity gate (aid.gravity, gated_start), else 0
+X_NOBG = X_AVAR + 38  # > 0: the next Kalman update leaves the gyro bias as it is (core.kalman._fuse)
+N_X = X_AVAR + 39
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

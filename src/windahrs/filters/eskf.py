@@ -81,6 +81,7 @@ class Mekf(CompiledEstimator):
         gravity.PARAMS,
         gravity.LAG_PARAMS,
         gravity.FUSE_RATE_PARAMS,
+        gravity.GATED_START_PARAMS,
         mag.PARAMS,
         mag.BIAS_PARAMS,
         mag.FUSE_RATE_PARAMS,
