@@ -22,7 +22,7 @@ Start check (:func:`start_check`): accel_lowpass seconds after the start, the pl
 every sample since then is held against the state's gravity by the lost-gravity test, and a
 start that failed it is levelled at once.
 
-Start off the gate (gated_start, :func:`start_off_gate`): after a start whose sample the
+Start off the gate (gated_start, :func:`gate_start`): after a start whose sample the
 gravity gate rejects, each sample is fused rather than the mean for GATED_START_SAMPLES_S,
 the update leaves the gyro bias as it is for GATED_START_BIAS_TAUS accel_lowpass
 (:func:`windahrs.core.kalman._keep_bias`), and the start check restarts the mean from the
@@ -65,8 +65,8 @@ from windahrs.core.layout import (
     X_FBAR,
     X_FGAIN,
     X_JLAG,
+    X_KEEPBG,
     X_NFUSE,
-    X_NOBG,
     X_NRM,
     X_OFFSTART,
     X_Q,
@@ -205,13 +205,17 @@ def start_check(cfg, prm, x, flags, P, work, inn, acc, t, c, g, fx, fy, fz):
 
 
 @njit(inline="always", **_JIT_CORE)
-def start_off_gate(prm, x, f0):
-    """Whether the start's specific force x[f0:f0+3] (one sample, or init_window's mean) is
-    one the gravity gate would reject, its length off gravity by more than accel_norm_gate
-    (gated_start): no reading of gravity to start from (ANSFL path_6's first sample, 0.46 g
-    under rotor vibration, is 37 deg from its first second's mean)."""
+def gate_start(prm, x, f0):
+    """At the start (gated_start): whether its specific force x[f0:f0+3] (one sample, or
+    init_window's mean) is one the gravity gate would reject, its length off gravity by more
+    than accel_norm_gate, so no reading of gravity to start from (ANSFL path_6's first
+    sample, 0.46 g under rotor vibration, is 37 deg from its first second's mean): x[X_OFFSTART]
+    1 or 0, and x[X_KEEPBG] how long the gravity update then leaves the gyro bias as it is
+    (GATED_START_BIAS_TAUS accel_lowpass, or 0; core.kalman._fuse reads it)."""
     fn = math.sqrt(x[f0] ** 2 + x[f0 + 1] ** 2 + x[f0 + 2] ** 2)
-    return abs(fn - prm["gravity"]) > prm["accel_norm_gate"] * prm["gravity"]
+    off = abs(fn - prm["gravity"]) > prm["accel_norm_gate"] * prm["gravity"]
+    x[X_OFFSTART] = 1.0 if off else 0.0
+    x[X_KEEPBG] = GATED_START_BIAS_TAUS * prm["accel_lowpass"] if off else 0.0
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -328,10 +332,5 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     m, ns = np.int64(3), np.int64(nsup)
     # (gated as one sample: with R / k the innovation's variance is about 1 / k of a sample's,
     # while the mean's innovation is a sample's, so the gate opens by k)
-    keep_bias = cfg["gated_start"] == 1 and x[X_OFFSTART] > 0
-    if keep_bias and t - x[X_TINIT] < GATED_START_BIAS_TAUS * prm["accel_lowpass"]:
-        x[X_NOBG] = 1.0  # a start off the gate: the gyro bias kept (GATED_START_BIAS_TAUS)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_accel2"] * kf)
-    if keep_bias:
-        x[X_NOBG] = 0.0
     per_sample_nis(cfg, flags, inn, sensor, kf)

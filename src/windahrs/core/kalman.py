@@ -59,9 +59,10 @@ from windahrs.core.layout import (
     X_FBAR,
     X_JLAG,
     X_JMAG,
+    X_KEEPBG,
     X_MBAR,
-    X_NOBG,
     X_Q,
+    X_TINIT,
     X_V,
     X_W,
 )
@@ -315,7 +316,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
         if cfg["tilt_only"] == 1 and sensor == INN_ACCEL:
             _tilt_only(x, Kt, Gt, dx, S, U, nu)
-        if cfg["gated_start"] == 1 and x[X_NOBG] > 0:  # the gyro bias kept (aid.gravity, gated_start)
+        if cfg["gated_start"] == 1 and sensor == INN_ACCEL and t - x[X_TINIT] < x[X_KEEPBG]:
+            # a start off the gravity gate: the gyro bias kept (aid.gravity.gate_start)
             _keep_bias(cfg, Kt, Gt, dx, U)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]

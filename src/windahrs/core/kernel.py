@@ -43,7 +43,7 @@ from windahrs.aid.gnss_vel import (
 )
 from windahrs.aid.gravity import (
     fuse_gravity,
-    start_off_gate,
+    gate_start,
 )
 from windahrs.aid.mag import (
     _set_mag_reference,
@@ -122,7 +122,6 @@ from windahrs.core.layout import (
     X_MBAR,
     X_NRM,
     X_NWIN,
-    X_OFFSTART,
     X_Q,
     X_RM,
     X_TIMU,
@@ -213,8 +212,8 @@ def _try_init(cfg, prm, x, flags, P, work):
             for a in range(3):
                 x[X_RM + a] = x[f0 + a]
             x[X_NRM] = 1.0
-        if cfg["gated_start"] == 1:  # a start off the gravity gate (aid.gravity.start_off_gate)
-            x[X_OFFSTART] = 1.0 if start_off_gate(prm, x, f0) else 0.0
+        if cfg["gated_start"] == 1:  # a start off the gravity gate (aid.gravity.gate_start)
+            gate_start(prm, x, f0)
     flags[S_WPEND] = 1 if (cfg["i_w"] >= 0 and cfg["init_wind_given"] == 0) else 0
     for s in range(N_SENSORS):  # every aid source's reset clock starts now
         x[X_TOK + s] = x[X_TIMU]
@@ -237,17 +236,15 @@ def _initial_state(cfg, prm, x, flags, P, work):
         q = (prm["init_q"][0], prm["init_q"][1], prm["init_q"][2], prm["init_q"][3])
     elif flags[S_FLAST] == 0:  # no IMU sample yet (only NaN ones): level
         q = (1.0, 0.0, 0.0, 0.0)
-    elif cfg["site_mag_known"] == 1:
+    else:
+        # north: the site's field, or (unknown) its declination, 0 when that is unknown too
+        if cfg["site_mag_known"] == 1:
+            rx, ry, rz = prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2]
+        else:
+            rx, ry, rz = math.cos(prm["site_decl"]), math.sin(prm["site_decl"]), 0.0
         q = _triad(
             x[f0], x[f0 + 1], x[f0 + 2],
-            flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
-            True, prm["site_mag"][0], prm["site_mag"][1], prm["site_mag"][2],
-        )  # fmt: skip
-    else:  # the field unknown: its declination, when the site has one, makes the heading true
-        q = _triad(
-            x[f0], x[f0 + 1], x[f0 + 2],
-            flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2],
-            True, math.cos(prm["site_decl"]), math.sin(prm["site_decl"]), 0.0,
+            flags[S_FMAG] == 1, x[X_FMAG], x[X_FMAG + 1], x[X_FMAG + 2], True, rx, ry, rz,
         )  # fmt: skip
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = q
     iv, ib, iw, iba = cfg["i_v"], cfg["i_bg"], cfg["i_w"], cfg["i_ba"]

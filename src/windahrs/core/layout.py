@@ -333,7 +333,7 @@ X_TGFUSE = X_AVAR + 34  # when it was last fused, s
 X_NMFUSE = X_AVAR + 35  # the same for the magnetometer's mean (aid.mag)
 X_TMFUSE = X_AVAR + 36
 X_OFFSTART = X_AVAR + 37  # 1: the start's sample was off the gravity gate (aid.gravity, gated_start), else 0
-X_NOBG = X_AVAR + 38  # > 0: the next Kalman update leaves the gyro bias as it is (core.kalman._fuse)
+X_KEEPBG = X_AVAR + 38  # for how long after the start, s, gravity updates keep the gyro bias (gated_start)
 N_X = X_AVAR + 39
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
