@@ -23,6 +23,7 @@ range), never at one sample: a single spike is a glitch, not a unit.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -66,7 +67,9 @@ __all__ = [
     "Site",
     "Truth",
     "WindStream",
+    "declination_radians",
     "mag_to_tesla",
+    "with_declination",
 ]
 
 F64 = NDArray[np.float64]
@@ -665,6 +668,57 @@ class Flight:
         for k, v in sorted(self.meta.items()):
             lines.append(f"meta       {k} = {v}")
         return "\n".join(lines)
+
+
+#: What a declination given in degrees must be: a direction east of true north, so within
+#: half a turn either way (the CSV manifest's ``declination_deg`` takes the same range).
+DECLINATION_DEG_EXPECTED = "degrees east of true north, a finite number from -180 to 180"
+
+
+def declination_radians(degrees: object, name: str = "declination") -> float:
+    """A declination given in degrees east of true north (a finite number within +-180),
+    in radians; a :class:`FlightError` naming ``name`` (e.g. the option it came from)
+    otherwise."""
+    if isinstance(degrees, bool) or not isinstance(degrees, int | float | np.floating | np.integer):
+        raise FlightError(name, DECLINATION_DEG_EXPECTED, repr(degrees))
+    d = float(degrees)
+    if not (math.isfinite(d) and abs(d) <= 180.0):
+        raise FlightError(name, DECLINATION_DEG_EXPECTED, repr(degrees))
+    return math.radians(d)
+
+
+def with_declination(flight: Flight, degrees: float, *, source: str = "declination") -> Flight:
+    """The flight with its site's declination set to ``degrees`` (east of true north),
+    replacing what its log said (an autopilot parameter, a manifest's ``declination_deg``),
+    and ``meta["site.declination_param"] = source`` (what ``info`` shows); the value it
+    replaced, if any, is kept as ``meta["site.declination_replaced"]``.
+
+    When the site's Earth field is known (``mag_n``) the declination is the field's own: a
+    value that agrees with it within :data:`DECLINATION_TOL` leaves the flight as it is, one
+    that does not is refused (:class:`Site`'s check), a :class:`FlightError` naming
+    ``source`` and both values. A value that is not finite or beyond +-180 is refused too
+    (:func:`declination_radians`)."""
+    d = declination_radians(degrees, source)
+    site = flight.site
+    try:
+        new_site = dataclasses.replace(site, declination=d)
+    except FlightError as exc:
+        if exc.field != "site.declination" or site.declination is None:
+            raise
+        raise FlightError(
+            source,
+            f"the declination of the flight's known field site.mag_n ({np.degrees(site.declination):+.3f} deg, "
+            f"within {np.degrees(DECLINATION_TOL):.1f} deg)",
+            f"{float(degrees):+.3f} deg",
+        ) from None
+    if site.mag_n is not None:  # the field's own declination stands, checked against the value
+        return flight
+    meta = dict(flight.meta)
+    if site.declination is not None:
+        was = meta.get("site.declination_param", "the flight")
+        meta["site.declination_replaced"] = f"{was}: {np.degrees(site.declination):+.3f} deg"
+    meta["site.declination_param"] = source
+    return flight.replace(site=new_site, meta=meta)
 
 
 #: The parts of a Flight whose input the edge may repair (keys of ``Flight.repairs``).

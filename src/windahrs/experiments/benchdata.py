@@ -458,6 +458,7 @@ def bench_data(
     skipped: Sequence[Skipped] = (),
     progress: Callable[[int, int], None] | None = None,
     on_read: Callable[[Path, Flight], None] | None = None,
+    prepare: Callable[[Flight], Flight] | None = None,
 ) -> BenchResult:
     """Run every estimator spec (``NAME`` or ``NAME:field=value:...``, see
     :func:`~windahrs.filters.registry.make_estimator`) over every recording in ``paths``
@@ -485,7 +486,10 @@ def bench_data(
     ``progress(done, total)`` is called after each filter run (and per filter of a skipped
     recording); ``on_read(path, flight)`` after each recording is read, before its filters
     run (the command line says there what the reader repaired and warns of a low-rate IMU,
-    as for one flight). Trial names are :func:`trial_names`.
+    as for one flight). ``prepare(flight)``, when given, is applied to each recording as
+    soon as it is read and its result used instead (the command line's ``--declination``,
+    :func:`windahrs.flight.with_declination`); a ValueError from it skips that recording
+    with the reason, as a read that fails does. Trial names are :func:`trial_names`.
     """
     from windahrs.io import read_flight
 
@@ -505,6 +509,8 @@ def bench_data(
     for name, p in zip(names, paths, strict=True):
         try:
             flight = read_flight(Path(p))
+            if prepare is not None:
+                flight = prepare(flight)
             reference_of(flight)  # raises when there is nothing to score against
         except (ValueError, OSError, ImportError) as exc:
             skips.append(Skipped(str(p), _reason(exc, p)))
