@@ -350,6 +350,19 @@ CASES: dict[str, Case] = {
     "bench-out-no-parent": Case("bench-data {flight} --filters mekf --out {t}/nodir/b.json", "nodir does not exist"),
     "bench-out-readonly": Case("bench-data {flight} --filters mekf --out {ro}/b.json", "--out"),
     "bench-no-reference": Case("bench-data {t}/nr", "reference"),  # {t}/nr/f.h5 written by test_bad_input
+    # ---- --declination (degrees east, finite, within +-180; a flight with a known field keeps its own) ----------
+    "info-decl-nan": Case("info {flight} --declination nan", "--declination: expected a finite number, found 'nan'"),
+    "info-decl-200": Case("info {flight} --declination 200", "--declination: expected degrees east of true north, "
+                          "a finite number from -180 to 180, found '200'"),
+    "est-decl-word": Case(f"{EST} --declination x", "--declination: expected a number, found 'x'"),
+    "est-decl-inf": Case(f"{EST} --declination=-inf", "--declination: expected a finite number, found '-inf'"),
+    "cmp-decl-200": Case("compare {flight} --declination -200", "--declination: expected degrees east"),
+    "rep-decl-nan": Case("report {flight} --out {t}/r.html --declination nan", "--declination: expected a finite"),
+    "bench-decl-x": Case("bench-data {flight} --declination x", "--declination: expected a number, found 'x'"),
+    # the simulated flight's site field has its own declination, -8.0 deg
+    "est-decl-field": Case(f"{EST} --declination 5", "--declination: expected the declination of the flight's known "
+                           "field site.mag_n (-8.0"),
+    "info-decl-field": Case("info {flight} --declination 5", "found +5.000 deg"),
 }
 
 

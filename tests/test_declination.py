@@ -4,6 +4,7 @@ their heading is true (as an autopilot's reference is) when the field itself is 
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -132,3 +133,69 @@ def test_ulog_mag_less_ekf2_saved_bias_for_its_device(tmp_path) -> None:
     other = read_flight(path)
     np.testing.assert_array_equal(other.mag.mag_b, plain.mag.mag_b)
     assert "mag.ekf2_bias_subtracted" not in other.meta
+
+
+def test_with_declination_sets_replaces_and_checks(tmp_path) -> None:
+    """windahrs.flight.with_declination (the command line's --declination): sets the site's
+    declination and says where it came from, replaces a log's, and is refused against a
+    known field that disagrees (Site's check) or when not finite or beyond +-180."""
+    from windahrs.flight import with_declination
+
+    path = tmp_path / "log.ulg"
+    path.write_bytes(ulog_bytes(decl_deg=3.5))
+    fl = with_declination(read_flight(path), -4.0, source="--declination")
+    assert fl.site.declination == pytest.approx(math.radians(-4.0))
+    assert fl.meta["site.declination_param"] == "--declination"
+    assert fl.meta["site.declination_replaced"] == "EKF2_MAG_DECL: +3.500 deg"
+    for bad in (math.nan, math.inf, 200.0, -180.5, "x", True):
+        with pytest.raises(FlightError, match="^--declination: expected degrees east"):
+            with_declination(fl, bad, source="--declination")  # type: ignore[arg-type]
+    known = wa.Flight(imu=fl.imu, site=Site(mag_n=MAG_DALIAN_N))
+    assert with_declination(known, -8.05, source="--declination") is known  # within 0.1 deg: the field's own
+    with pytest.raises(FlightError, match=r"^--declination: .*site.mag_n \(-8.0\d\d deg.*found \+5.000 deg"):
+        with_declination(known, 5.0, source="--declination")
+
+
+def _yaw_deg(path) -> np.ndarray:
+    from windahrs.estimate import load_estimate
+    from windahrs.rotation import euler_from_quat
+
+    return np.degrees(euler_from_quat(load_estimate(path).q_nb)[:, 2])
+
+
+def test_cli_declination_turns_the_heading(tmp_path, capsys) -> None:
+    """On a log without a declination, estimate --declination 10 heads 10 deg east of the
+    same run without it; info says where the declination came from."""
+    from windahrs.cli import main
+
+    log = tmp_path / "log.ulg"
+    log.write_bytes(ulog_bytes())
+    assert main(["estimate", str(log), "--filter", "mekf", "--out", str(tmp_path / "mag.h5")]) == 0
+    assert main(["estimate", str(log), "--filter", "mekf", "--declination", "10",
+                 "--out", str(tmp_path / "true.h5")]) == 0
+    turn = np.angle(np.exp(1j * np.radians(_yaw_deg(tmp_path / "true.h5") - _yaw_deg(tmp_path / "mag.h5"))))
+    np.testing.assert_allclose(np.degrees(turn), 10.0, atol=0.05)
+    capsys.readouterr()
+    assert main(["info", str(log), "--declination", "-2.5"]) == 0
+    out = capsys.readouterr().out
+    assert "declination -2.50 deg" in out and "site.declination_param = --declination" in out
+
+
+def test_bench_data_declination_applies_to_every_recording(tmp_path, capsys) -> None:
+    """bench-data --declination sets every recording's declination; one whose known field
+    disagrees is skipped, with the reason naming the option and both values."""
+    from windahrs.cli import main
+
+    d = tmp_path / "recs"
+    d.mkdir()
+    (d / "log.ulg").write_bytes(ulog_bytes())
+    sim = simulate(make_scenario("quadrotor", wind=0.0, duration=3.0), np.random.default_rng(0))
+    save_flight(sim, d / "sim.h5")  # Dalian's field: -8.0 deg
+    assert main(["bench-data", str(d), "--filters", "mekf", "--declination", "5", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert [(t["trial"], "error" in t) for t in res["trials"]] == [("log", False)]
+    [skip] = res["skipped"]
+    assert skip["path"].endswith("sim.h5")
+    assert skip["reason"].startswith("--declination: expected the declination of the flight's known field "
+                                     "site.mag_n (-8.0")
+    assert skip["reason"].endswith("found +5.000 deg")

@@ -75,6 +75,19 @@ def _number(text: str) -> float:
     return value
 
 
+def _declination(text: str) -> float:
+    """A magnetic declination, degrees east of true north (argparse type): a finite number
+    within +-180 (:func:`windahrs.flight.declination_radians`)."""
+    from windahrs.flight import FlightError, declination_radians
+
+    value = _number(text)
+    try:
+        declination_radians(value)
+    except FlightError as exc:
+        raise argparse.ArgumentTypeError(f"expected {exc.expected}, found {text!r}") from None
+    return value
+
+
 def _integer(text: str, low: int) -> int:
     try:
         value = int(text)
@@ -570,6 +583,7 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
     from windahrs.experiments.align import unaligned_clock_note
     from windahrs.experiments.benchdata import bench_data, discover_flights
     from windahrs.filters.registry import make_estimator
+    from windahrs.flight import with_declination
 
     specs = _specs(args.filters)
     if args.out is not None:
@@ -594,8 +608,13 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
             if note is not None:
                 own_clock[str(path)] = note
 
+        def prepare(flight: Flight) -> Flight:  # --declination, on every recording
+            return flight if args.declination is None else with_declination(
+                flight, args.declination, source="--declination")
+
         res = bench_data(
-            found.flights, specs, align=args.align, skipped=found.skipped, progress=step, on_read=on_read
+            found.flights, specs, align=args.align, skipped=found.skipped, progress=step, on_read=on_read,
+            prepare=prepare,
         )
     if own_clock:  # once for the folder, not once per recording
         paths = list(own_clock)
@@ -644,7 +663,7 @@ def _cmd_filters(args: argparse.Namespace) -> int:
 def _cmd_info(args: argparse.Namespace) -> int:
     from windahrs.io import detect_format
 
-    flight = _read(args.file, say_repairs=False)  # the summary lists them
+    flight = _read(args.file, say_repairs=False, declination=args.declination)  # the summary lists them
     print(f"file       {args.file}")
     print(f"format     {detect_format(args.file)}")
     print(flight.summary())
@@ -658,15 +677,19 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read(path: Path, *, say_repairs: bool = True) -> Flight:
+def _read(path: Path, *, say_repairs: bool = True, declination: float | None = None) -> Flight:
     """A flight file or a log/dataset the readers know (a warning on stderr when its IMU
     rate is too low for the default noise, and one saying what the edge repaired: once per
-    flight, not once per estimator)."""
+    flight, not once per estimator), with its site's declination set to ``declination``
+    (degrees, ``--declination``) when given."""
+    from windahrs.flight import with_declination
     from windahrs.io import read_flight
 
     if path.exists() and not (path.is_file() or path.is_dir()):  # reading a FIFO would wait forever
         raise UsageError(f"{path}: not a regular file or directory (a device, FIFO or socket)")
     flight = read_flight(path)
+    if declination is not None:
+        flight = with_declination(flight, declination, source="--declination")
     _say_read(path, flight, say_repairs=say_repairs)
     return flight
 
@@ -717,7 +740,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             est = est if isinstance(est, Smoothed) else Smoothed(est)
         except ValueError as exc:
             raise UsageError(f"--smooth: {exc}") from None
-    flight = _read(args.file)
+    flight = _read(args.file, declination=args.declination)
     result = est.run(flight)
     chose = describe_choice(result)
     if chose is not None:
@@ -791,9 +814,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     if args.filters is not None:
         # fail on a bad name before any work
         estimators = [make_estimator(n) for n in _smoothed(_specs(args.filters), args.smooth)]
-        flight = _read(args.file)
+        flight = _read(args.file, declination=args.declination)
     else:  # the defaults, less those the flight lacks a sensor for or that are not installed
-        flight = _read(args.file)
+        flight = _read(args.file, declination=args.declination)
         selection = select_estimators(None).for_flight(flight)
         for note in selection.notes:
             _note(note)
@@ -846,7 +869,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     specs = _specs(args.filters) if explicit else None
     args.outputs.file(args.out, "--out")
     selection = select_estimators(specs)  # fail on a bad name or field before any work
-    flight = _read(args.file)
+    flight = _read(args.file, declination=args.declination)
     with _bar(len(selection.estimators), "report") as bar:
         run = run_for_report(
             flight, selection, align=args.align, progress=lambda done, _: bar.update(done - bar.n),
@@ -907,6 +930,20 @@ BENCH_ALIGN_HELP = (
     "timing uncertainty lowered to the fit's, for every filter after the first"
 )
 
+#: ``{tol}``: :data:`windahrs.flight.DECLINATION_TOL` in degrees, filled in by :func:`_declination_option`.
+DECLINATION_HELP = (
+    "the site's magnetic declination, degrees east of true north (-180 to 180), replacing what the log says "
+    "(PX4 EKF2_MAG_DECL or ATT_MAG_DECL, ArduPilot COMPASS_DEC, a CSV manifest's declination_deg): estimators that "
+    "learn the Earth's field from the data turn it by this, so their heading is from true north (without any, "
+    "magnetic north). A flight whose field is known (site.mag_n: a simulation, a manifest's mag_n) keeps that "
+    "field's declination, and a value more than {tol} deg from it is refused"
+)
+INFO_DECLINATION_HELP = DECLINATION_HELP + "; shown in the site line, meta site.declination_param = --declination"
+BENCH_DECLINATION_HELP = (
+    DECLINATION_HELP + "; applies to every recording in the folder (one whose known field disagrees is skipped, "
+    "with the reason)"
+)
+
 SMOOTH_HELP_ONE = (
     "offline: run the filter's smoother over the whole flight (mekf, mekf-air, ins-wind, ins-drag, auto; "
     "same as the spec NAME-smooth): attitude, bias, velocity, wind and covariance from the whole log, by two "
@@ -918,6 +955,15 @@ SMOOTH_HELP_MANY = (
     "(NAME-smooth: two filters forward and backward in time, or Rauch-Tung-Striebel with air data or drag); the "
     "others run as they are, with a note on stderr"
 )
+
+
+def _declination_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--declination DEG`` on a command that reads a recorded flight (``help_text``:
+    :data:`DECLINATION_HELP` or a variant, its tolerance filled in)."""
+    from windahrs.flight import DECLINATION_TOL
+
+    parser.add_argument("--declination", type=_declination, default=None, metavar="DEG",
+                        help=help_text.format(tol=f"{math.degrees(DECLINATION_TOL):g}"))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -1016,6 +1062,7 @@ def _parser() -> argparse.ArgumentParser:
         "samples beyond the sensor's range: a count per stream and kind) and the reader's notes (meta).",
     )
     i.add_argument("file", type=_path, metavar="FILE", help="a windahrs flight file, a log or a dataset directory")
+    _declination_option(i, INFO_DECLINATION_HELP)
     i.set_defaults(func=_cmd_info)
 
     e = sub.add_parser(
@@ -1038,6 +1085,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     e.add_argument("--out", type=_file_path, default=None, metavar="EST.h5", help="write the Estimate here")
     e.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_ONE)
+    _declination_option(e, DECLINATION_HELP)
     e.set_defaults(func=_cmd_estimate)
 
     c = sub.add_parser(
@@ -1055,6 +1103,7 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
     c.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_MANY)
     c.add_argument("--align", action="store_true", help=ALIGN_HELP)
+    _declination_option(c, DECLINATION_HELP)
     c.set_defaults(func=_cmd_compare)
 
     rp = sub.add_parser(
@@ -1073,6 +1122,7 @@ def _parser() -> argparse.ArgumentParser:
         "sensor for or that are not installed)",
     )
     rp.add_argument("--align", action="store_true", help=REPORT_ALIGN_HELP)
+    _declination_option(rp, DECLINATION_HELP)
     rp.add_argument("--out", type=_file_path, required=True, metavar="REPORT.html", help="the HTML file to write")
     rp.set_defaults(func=_cmd_report)
 
@@ -1169,6 +1219,7 @@ def _parser() -> argparse.ArgumentParser:
                    "row only)")
     b.add_argument("--align", action="store_true", help=BENCH_ALIGN_HELP)
     b.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_MANY)
+    _declination_option(b, BENCH_DECLINATION_HELP)
     b.add_argument("--json", action="store_true", help="print the JSON result instead of the table")
     b.add_argument("--out", type=_file_path, default=None, metavar="FILE", help="also write .json or a text table")
     b.set_defaults(func=_cmd_bench_data)
