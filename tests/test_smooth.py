@@ -47,9 +47,11 @@ def _skew(w: np.ndarray) -> np.ndarray:
 def _rts_oracle(est: wa.Estimator, rec: S.SmoothRecord) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dense RTS of the 6-state mekf (attitude, gyro bias) over the forward record, in numpy:
     Phi = expm(F dt) of the continuous error dynamics d(dtheta)/dt = -[w]x dtheta - dbg
-    (Van Loan), Q of SPEC 2.4, the prior predicted from the posterior, C by a dense solve."""
+    (Van Loan), Q of SPEC 2.4 (the bias's walk about the nav vertical at gyro_bias_noise_vertical's
+    density), the prior predicted from the posterior, C by a dense solve."""
     p = est.params  # type: ignore[attr-defined]
     sg2, sb2, sc2 = p.gyro_noise**2, p.gyro_bias_noise**2, p.gyro_scale_noise**2
+    sv2 = p.gyro_bias_noise_vertical**2 if p.gyro_bias_noise_vertical > 0 else sb2
     nom, P, aux = rec.nom.copy(), rec.P.copy(), rec.aux
     N = len(nom)
     for k in range(N - 2, -1, -1):
@@ -62,13 +64,15 @@ def _rts_oracle(est: wa.Estimator, rec: S.SmoothRecord) -> tuple[np.ndarray, np.
         F[:3, :3], F[:3, 3:] = -_skew(w), -np.eye(3)
         Phi = expm(F * dt)
         g2 = sg2 + sc2 * (w @ w)
-        Q = np.zeros((6, 6))
-        Q[:3, :3] = np.eye(3) * (g2 * dt + sb2 * dt**3 / 3)
-        Q[:3, 3:] = Q[3:, :3] = np.eye(3) * (-sb2 * dt**2 / 2)
-        Q[3:, 3:] = np.eye(3) * sb2 * dt
-        Pp = Phi @ P[k] @ Phi.T + Q
         q_prior = quat_mul(nom[k, :4], quat_exp(w * dt))
         q_prior /= np.linalg.norm(q_prior)
+        u = quat_rotate_inv(q_prior, np.array([0.0, 0.0, 1.0]))  # the nav vertical in the body
+        Sb = sb2 * np.eye(3) + (sv2 - sb2) * np.outer(u, u)
+        Q = np.zeros((6, 6))
+        Q[:3, :3] = np.eye(3) * g2 * dt + Sb * dt**3 / 3
+        Q[:3, 3:] = Q[3:, :3] = -Sb * dt**2 / 2
+        Q[3:, 3:] = Sb * dt
+        Pp = Phi @ P[k] @ Phi.T + Q
         C = np.linalg.solve(Pp, Phi @ P[k]).T
         dx = np.concatenate([quat_log(quat_mul(quat_conj(q_prior), nom[j, :4])), nom[j, 4:7] - nom[k, 4:7]])
         d = C @ dx

@@ -169,6 +169,7 @@ PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
     # process model (core.predict)
     ("gyro_noise2", 1, "gyro_noise^2, (rad/s)^2/Hz"),
     ("gyro_bias_noise2", 1, "gyro_bias_noise^2, (rad/s^2)^2/Hz"),
+    ("gyro_bias_noise_dv2", 1, "gyro_bias_noise_vertical^2 - gyro_bias_noise^2 (0: one walk), (rad/s^2)^2/Hz"),
     ("gyro_scale_noise2", 1, "gyro_scale_noise^2: rate-proportional gyro noise"),
     ("accel_noise2", 1, "accel_noise^2, the INS input's, (m/s^2)^2/Hz"),
     ("accel_bias_noise2", 1, "accel_bias_noise^2, (m/s^3)^2/Hz"),

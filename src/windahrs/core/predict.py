@@ -48,6 +48,8 @@ from windahrs.core.quat import (
 ATTITUDE_PARAMS = ("gyro_noise", "gyro_bias_noise", "init_att", "init_yaw", "init_bias", "init_window")
 HELD_SAMPLE_PARAMS = ("unmeasured_motion_dt",)
 GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
+#: ... and the gyro bias's walk about the nav vertical at a density of its own (error-state only).
+BIAS_WALK_PARAMS = ("gyro_bias_noise_vertical",)
 INS_PARAMS = ("accel_noise", "accel_noise_measured", "accel_bias_noise", "init_accel_bias", "init_v")
 
 #: The time constant of the accelerometer noise measured on line when no low-pass gives it, s
@@ -257,6 +259,8 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     sa2 = prm["accel_noise2"]
     if iv >= 0 and cfg["accel_noise_online"] >= 1:  # the INS input's density at least the noise measured
         sa2 = max(sa2, x[X_AVAR] * dt)  # (a per-sample variance: density^2 = var * step)
+    if prm["gyro_bias_noise_dv2"] != 0.0:  # the bias's walk about the vertical: its own density
+        _bias_walk_vertical(x, P, ib, prm["gyro_bias_noise_dv2"], dt)
     for k in range(3):
         P[k, k] += qaa
         P[k, ib + k] += qab
@@ -273,6 +277,25 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         P[iw + 1, iw + 1] += prm["wind_noise2"] * dt
         P[iw + 2, iw + 2] += prm["wind_noise_vertical2"] * dt
     return e
+
+
+@njit(inline="always", **_JIT_CORE)
+def _bias_walk_vertical(x, P, ib, ds2, dt):
+    """The gyro bias's random walk about the nav vertical at a density whose square differs
+    from the isotropic one's by ds2: ds2 u u^T added to the walk's density, u the nav down
+    in the body (C_bn e_3), with its attitude terms (-dt^2 / 2, dt^3 / 3) as the isotropic
+    walk's."""
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    u0, u1, u2 = c[6], c[7], c[8]
+    for r in range(3):
+        ur = u0 if r == 0 else (u1 if r == 1 else u2)
+        for k in range(3):
+            uk = u0 if k == 0 else (u1 if k == 1 else u2)
+            s = ds2 * (ur * uk)  # (symmetric to the last bit)
+            P[r, k] += s * dt**3 / 3.0
+            P[r, ib + k] -= s * dt**2 / 2.0
+            P[ib + r, k] -= s * dt**2 / 2.0
+            P[ib + r, ib + k] += s * dt
 
 
 @njit(**_JIT_CORE)

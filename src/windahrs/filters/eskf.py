@@ -47,8 +47,14 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS, airspeed_sca
 #: rate-proportional gyro noise, heading-only magnetometer about the vertical
 #: when the site's field is unknown, magnetic disturbance checks (10 %, 10 deg), and the
 #: means' gyro-bias columns (lowpass_bias); the gravity mean fused at 50 Hz,
-#: the field's at 10 Hz (accel_fuse_rate, mag_fuse_rate).
+#: the field's at 10 Hz (accel_fuse_rate, mag_fuse_rate); the gyro bias walks at PX4 EKF2's
+#: density (EKF2_GYR_B_NOISE 1e-3 rad/s^2 per 10 ms step: 1e-4 rad/s^2/sqrt(Hz)) where gravity
+#: observes it and at the core's 2e-5 about the vertical, where only the magnetometer
+#: does (VQF learns that part of the bias far slower too, biasVerticalForgettingFactor):
+#: docs/RESULTS.md section 32.
 MEKF_FIELD = EskfParams(
+    gyro_bias_noise=1e-4,
+    gyro_bias_noise_vertical=2e-5,
     accel_lowpass=3.0,
     accel_fuse_rate=50.0,
     accel_noise_online=True,
@@ -78,6 +84,7 @@ class Mekf(CompiledEstimator):
         imu_screen.PARAMS,
         rest.PARAMS,
         process.GYRO_SCALE_PARAMS,
+        process.BIAS_WALK_PARAMS,
         gravity.PARAMS,
         gravity.LAG_PARAMS,
         gravity.FUSE_RATE_PARAMS,
@@ -117,6 +124,7 @@ class InsWind(CompiledEstimator):
         imu_screen.PARAMS,
         rest.PARAMS,
         process.GYRO_SCALE_PARAMS,
+        process.BIAS_WALK_PARAMS,
         process.INS_PARAMS,
         process.WIND_PARAMS,
         gnss_vel.PARAMS,

@@ -66,7 +66,8 @@ _SPEED_OF_SOUND = 340.3  # m/s, ISA sea level: no velocity, wind or error of a s
 #: exceed the range the sensor measures; angles are at most pi (:data:`ANGLE_FIELDS`);
 #: every other number at most :data:`MAX_MAGNITUDE`.
 FIELD_MAX: dict[str, float] = {
-    **dict.fromkeys(("gyro_noise", "gyro_bias_noise", "init_bias", *_RATE_FIELDS), _GYRO_RANGE),
+    **dict.fromkeys(("gyro_noise", "gyro_bias_noise", "gyro_bias_noise_vertical", "init_bias", *_RATE_FIELDS),
+                    _GYRO_RANGE),
     "rest_accel_threshold": _ACCEL_RANGE,
     **dict.fromkeys(("accel_noise", "accel_bias_noise", "accel_sigma", "init_accel_bias", "drag_sigma"),
                     _ACCEL_RANGE),
@@ -163,6 +164,15 @@ class EskfParams:
     ``(gyro_scale_noise |w|)^2`` added to gyro_noise^2 (scale-factor and axis-misalignment
     errors; 1e-3: about 0.1 % of the angle turned per second of rotation; error-state
     filters only, [ekf7] and [ekf10] ignore it; [mekf] default 1e-3).
+    gyro_bias_noise_vertical rad/s^2/sqrt(Hz) (error-state filters; 0: gyro_bias_noise's):
+    the bias's walk about the nav vertical (the body's component along C_bn e_3) at a
+    density of its own, the rest at gyro_bias_noise's. Gravity observes the bias across the
+    vertical, only a heading aid (the magnetometer) along it, and a disturbed field taken
+    into a fast-walking bias turns the heading: VQF learns that part far slower
+    (biasVerticalForgettingFactor). [mekf] default: 1e-4 (PX4 EKF2_GYR_B_NOISE's density)
+    across, 2e-5 along (measured: BROAD inclination 0.458 -> 0.399 deg on 02/07/10, 0.619 ->
+    0.609 on the rest, total 1.003 -> 0.993; PX4 sample.ulg tilt 0.176 -> 0.158;
+    docs/RESULTS.md section 32).
 
     Magnetometer: mag_mode "3d", "heading" (yaw only) or "off"; mag_sigma tesla per axis
     (noise only when the bias is a state, else noise plus residual hard iron);
@@ -330,6 +340,7 @@ class EskfParams:
     accel_fuse_rate: float = 0.0
     lowpass_bias: bool = False
     gyro_scale_noise: float = 0.0
+    gyro_bias_noise_vertical: float = 0.0
     mag_mode: Literal["3d", "heading", "off"] = "3d"
     mag_sigma: float = 1.5e-6
     mag_3d_needs_site: bool = False
@@ -658,6 +669,7 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
         "mag_3d_needs_site": False,
         "gyro_noise": max(suite.gyro.noise_density, 1e-12),
         "gyro_bias_noise": suite.gyro.bias_rw,
+        "gyro_bias_noise_vertical": 0.0,  # (the simulated bias walks alike about every axis)
         "accel_noise": max(suite.accel.noise_density, 1e-12),
         "init_bias": max(suite.gyro.bias_init_sigma, 1e-9),
         "accel_bias_noise": max(suite.accel.bias_rw, 1e-9),
