@@ -473,3 +473,28 @@ def test_online_accel_noise_starts_as_the_mean_of_the_samples_so_far() -> None:
     assert nis[False] > 1.0 and nis[False] > 2.5 * nis[True], nis
     with pytest.raises(ValueError, match="accel_noise_mean_start"):
         make_estimator("mekf:accel_noise_mean_start=2")
+
+
+def test_vertical_bias_walk_q_and_phi() -> None:
+    """gyro_bias_noise_vertical (core.predict._bias_walk_vertical): Q's gyro-bias density is
+    s_b^2 I + (s_v^2 - s_b^2) u u^T, u = C_bn e_3 at the predicted attitude, with SPEC 2.4's
+    attitude terms, exactly symmetric; Linearization.transition's Phi does not carry it."""
+    from windahrs.rotation import quat_from_euler, quat_rotate_inv
+
+    layout = Layout(("att", "bg"))
+    sb, sv, sg, dt = 1e-4, 2e-5, 1e-3, 0.01
+    w = np.array([0.1, -0.2, 0.3])
+    q = quat_from_euler([0.3, -0.2, 1.0])
+    one = Linearization(layout, EskfParams(gyro_noise=sg, gyro_bias_noise=sb), SITE)
+    two = Linearization(layout, EskfParams(gyro_noise=sg, gyro_bias_noise=sb, gyro_bias_noise_vertical=sv), SITE)
+    one.set_state(q)
+    two.set_state(q)
+    Phi1, _ = one.transition(w, np.zeros(3), dt)
+    Phi2, Q = two.transition(w, np.zeros(3), dt)
+    assert np.array_equal(Phi1, Phi2)
+    assert np.array_equal(Q, Q.T)
+    two.predict(np.zeros((6, 6)), w, np.zeros(3), dt)  # to the predicted attitude, where u is taken
+    u = quat_rotate_inv(two.q_nb, np.array([0.0, 0.0, 1.0]))
+    Sb = sb**2 * np.eye(3) + (sv**2 - sb**2) * np.outer(u, u)
+    want = np.block([[sg**2 * dt * np.eye(3) + Sb * dt**3 / 3, -Sb * dt**2 / 2], [-Sb * dt**2 / 2, Sb * dt]])
+    np.testing.assert_allclose(Q, want, rtol=1e-12, atol=1e-24)

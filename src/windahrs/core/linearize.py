@@ -52,7 +52,7 @@ F64 = NDArray[np.float64]
 #: The process-noise parameters of the prediction (zeroed for Phi alone).
 _PROCESS_NOISE = (
     "gyro_noise2", "gyro_bias_noise2", "accel_noise2", "accel_bias_noise2", "wind_noise2", "wind_noise_vertical2",
-    "mag_bias_noise2", "gyro_scale_noise2",
+    "mag_bias_noise2", "gyro_scale_noise2", "gyro_bias_noise_dv2",
 )  # fmt: skip
 #: The innovation gates, squared sigmas: NaN rejects every sample whatever its innovation.
 _GATES = ("gate_accel2", "gate_mag2", "gate_gnss2", "gate_air2", "gate_drag2")
