@@ -742,7 +742,8 @@ def make_state(
     prm["gyro_noise2"] = p.gyro_noise**2
     prm["gyro_bias_noise2"] = p.gyro_bias_noise**2
     vb = p.gyro_bias_noise_vertical
-    prm["gyro_bias_noise_dv2"] = vb**2 - p.gyro_bias_noise**2 if vb > 0 else 0.0
+    # (about the vertical at most gyro_bias_noise: a slower walk where only a heading aid observes it)
+    prm["gyro_bias_noise_dv2"] = min(vb, p.gyro_bias_noise) ** 2 - p.gyro_bias_noise**2 if vb > 0 else 0.0
     prm["accel_noise2"] = p.accel_noise**2
     prm["accel_bias_noise2"] = p.accel_bias_noise**2
     prm["wind_noise2"] = p.wind_noise**2

@@ -166,12 +166,17 @@ class EskfParams:
     filters only, [ekf7] and [ekf10] ignore it; [mekf] default 1e-3).
     gyro_bias_noise_vertical rad/s^2/sqrt(Hz) (error-state filters; 0: gyro_bias_noise's):
     the bias's walk about the nav vertical (the body's component along C_bn e_3) at a
-    density of its own, the rest at gyro_bias_noise's. Gravity observes the bias across the
+    density of its own, at most gyro_bias_noise (a larger value, or a gyro_bias_noise set
+    below it, e.g. from a log's EKF2_GYR_B_NOISE, gives one walk at gyro_bias_noise's), the
+    rest at gyro_bias_noise's. Gravity observes the bias across the
     vertical, only a heading aid (the magnetometer) along it, and a disturbed field taken
     into a fast-walking bias turns the heading: VQF learns that part far slower
     (biasVerticalForgettingFactor). [mekf] default: 1e-4 (PX4 EKF2_GYR_B_NOISE's density)
     across, 2e-5 along (measured: BROAD inclination 0.458 -> 0.399 deg on 02/07/10, 0.619 ->
-    0.609 on the rest, total 1.003 -> 0.993; PX4 sample.ulg tilt 0.176 -> 0.158;
+    0.609 on the rest, total 1.003 -> 0.993; PX4 sample.ulg tilt 0.176 -> 0.158; costs: PX4
+    heading 0.715 -> 0.740, the simulated quadrotor's tilt 3.68 -> 4.49 summed over 8 cases,
+    and on the simulated fixed wing without air data, where [mekf]'s turns read as tilt,
+    5.5-5.9 -> 7.4-7.9 deg and a clean flight's field residual past mag_drift's limit;
     docs/RESULTS.md section 32).
 
     Magnetometer: mag_mode "3d", "heading" (yaw only) or "off"; mag_sigma tesla per axis
@@ -654,7 +659,8 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
     The simulated sensors have white noise, no gyro scale-factor error and an undisturbed
     field: the filter then fuses raw samples (accel_lowpass = mag_lowpass = 0, whose means
     are correlated from sample to sample), adds no rate-proportional process noise
-    (gyro_scale_noise = 0) and has no magnetic disturbance checks (mag_norm_gate =
+    (gyro_scale_noise = 0), a gyro-bias walk alike about every axis
+    (gyro_bias_noise_vertical = 0) and has no magnetic disturbance checks (mag_norm_gate =
     mag_dip_gate = 0, mag_3d_needs_site off) and takes the INS input's density as given, not
     measured (accel_noise_measured off: the measure also holds the motion's own sample-to-sample
     changes). heading_model is kept (it matters only with mag_mode "heading")."""
