@@ -285,17 +285,17 @@ def _bias_walk_vertical(x, P, ib, ds2, dt):
     from the isotropic one's by ds2: ds2 u u^T added to the walk's density, u the nav down
     in the body (C_bn e_3), with its attitude terms (-dt^2 / 2, dt^3 / 3) as the isotropic
     walk's."""
-    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    u0, u1, u2 = c[6], c[7], c[8]
+    w, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    u = (2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), w * w - qx * qx - qy * qy + qz * qz)  # C_nb's last row
+    a3, a2, a1 = ds2 * dt**3 / 3.0, ds2 * dt**2 / 2.0, ds2 * dt
     for r in range(3):
-        ur = u0 if r == 0 else (u1 if r == 1 else u2)
+        ur = u[r]
         for k in range(3):
-            uk = u0 if k == 0 else (u1 if k == 1 else u2)
-            s = ds2 * (ur * uk)  # (symmetric to the last bit)
-            P[r, k] += s * dt**3 / 3.0
-            P[r, ib + k] -= s * dt**2 / 2.0
-            P[ib + r, k] -= s * dt**2 / 2.0
-            P[ib + r, ib + k] += s * dt
+            uu = ur * u[k]  # (u[r] u[k] and u[k] u[r]: the same number, so P stays symmetric)
+            P[r, k] += a3 * uu
+            P[r, ib + k] -= a2 * uu
+            P[ib + r, k] -= a2 * uu
+            P[ib + r, ib + k] += a1 * uu
 
 
 @njit(**_JIT_CORE)
