@@ -34,14 +34,17 @@ from windahrs.conventions import (
     SPEED_UNITS,
 )
 from windahrs.flight import (
+    DECLINATION_DEG_EXPECTED,
     AirDataStream,
     Flight,
+    FlightError,
     GnssStream,
     ImuStream,
     MagStream,
     Reference,
     Site,
     WindStream,
+    declination_radians,
     mag_to_tesla,
 )
 from windahrs.io.edge import (
@@ -619,14 +622,14 @@ def _site(man: _Manifest) -> Site:
     ):
         raise man.fail("flight.mag_n", "a list of 3 numbers (tesla, NED)", mag_n)
     decl = man.get("flight", "declination_deg", None)
-    if decl is not None and (
-        not isinstance(decl, int | float) or isinstance(decl, bool) or not abs(decl) <= 180.0
-    ):
-        raise man.fail("flight.declination_deg", "degrees east of true north, -180 to 180", decl)
+    try:
+        declination = None if decl is None else declination_radians(decl, "flight.declination_deg")
+    except FlightError:
+        raise man.fail("flight.declination_deg", DECLINATION_DEG_EXPECTED, decl) from None
     return Site(
         gravity=float(gravity),
         mag_n=None if mag_n is None else np.array(mag_n, float),
-        declination=None if decl is None else math.radians(decl),
+        declination=declination,
     )
 
 
