@@ -50,10 +50,7 @@ _AIR = (air_vector.PARAMS, tas.PARAMS, sideslip.PARAMS, aoa.PARAMS, airspeed_sca
 #: the field's at 10 Hz (accel_fuse_rate, mag_fuse_rate); the gyro bias walks at PX4 EKF2's
 #: density (EKF2_GYR_B_NOISE 1e-3 rad/s^2 per 10 ms step: 1e-4 rad/s^2/sqrt(Hz)) where gravity
 #: observes it and at the core's 2e-5 about the vertical, where only the magnetometer
-#: does (VQF learns that part of the bias far slower too, biasVerticalForgettingFactor):
-#: docs/RESULTS.md section 32 (real recordings gain; the simulated flights, whose bias walks at
-#: 1e-5, lose: the quadrotor's tilt 3.68 -> 4.49 deg summed, a fixed wing without air data 5.5-5.9
-#: -> 7.4-7.9 deg per case, its clean field then past mag_drift's limit).
+#: does (gyro_bias_noise_vertical: its gains and costs in EskfParams, docs/RESULTS.md section 32).
 MEKF_FIELD = EskfParams(
     gyro_bias_noise=1e-4,
     gyro_bias_noise_vertical=2e-5,
