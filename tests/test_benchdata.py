@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import h5py
@@ -512,3 +513,24 @@ def test_px4_at_rest_alignment_is_flagged() -> None:
     assert al.correlation < 0.5 and alignment_warning(al) is not None  # measured 0.198
     line = benchdata._alignment_line(benchdata.AlignmentOutcome(alignment=al, aligned_on="vqf", warning="x"))
     assert line.endswith("(unreliable: rate agreement under 0.5: too little common motion)")
+
+
+def test_estimator_warnings_name_the_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Over a folder, an estimator's warning says which recording it is about (and the other
+    recording, which has nothing to warn of, gets no line)."""
+    quad = simulate(make_scenario("quadrotor", wind=3.0, duration=6.0), np.random.default_rng(2)).replace(gnss=None)
+    save_flight(quad, tmp_path / "calm.h5")
+    w = quad.imu.w_b.copy()
+    w[600, 0] += 30.0  # one glitched gyro sample: held by the IMU screen, which warns
+    save_flight(quad.replace(imu=ImuStream(quad.imu.t, w, quad.imu.f_b)), tmp_path / "spiky.h5")
+    assert main(["bench-data", str(tmp_path), "--filters", "mekf"]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "warning:" in ln]
+    assert lines and all(ln.startswith("windahrs bench-data: warning: spiky: mekf: ") for ln in lines), lines
+    assert any("IMU samples not propagated" in ln for ln in lines), lines
+
+
+def test_naming_warnings_reissues_when_the_block_raises() -> None:
+    with pytest.warns(UserWarning, match=r"^trial_3: late$"), pytest.raises(RuntimeError):
+        with benchdata._naming_warnings("trial_3"):
+            warnings.warn("late", UserWarning, stacklevel=1)
+            raise RuntimeError("the run failed")

@@ -47,7 +47,9 @@ import math
 import os
 import re
 import time
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -450,6 +452,25 @@ def _failed(trial: str, spec: str, why: str, seconds: float = math.nan) -> Trial
     return TrialScore(trial, spec, math.nan, math.nan, math.nan, 0, seconds, error=why)
 
 
+@contextmanager
+def _naming_warnings(recording: str) -> Iterator[None]:
+    """Re-issue the warnings of the block (an estimator's resets, rejections, alerts) with
+    the recording's name in front: over a folder of recordings, "mekf: 46 IMU samples not
+    propagated" alone does not say which one. Issued when the block ends, also when it
+    raises."""
+    held: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                yield
+            finally:
+                held = list(caught)
+    finally:
+        for w in held:
+            warnings.warn_explicit(f"{recording}: {w.message}", w.category, w.filename, w.lineno)
+
+
 def bench_data(
     paths: Sequence[str | os.PathLike[str]],
     specs: Sequence[str],
@@ -471,7 +492,9 @@ def bench_data(
     ``skipped`` with the reason (``skipped`` given here, e.g. by :func:`discover_flights`,
     is listed first). A filter that cannot run on a flight (a missing sensor, a failed
     initialisation: a ValueError) or cannot be scored fails that trial's row only, with the
-    reason. Flights are read and run one at a time.
+    reason. Flights are read and run one at a time. What the estimators warn of (resets,
+    rejections, alerts) is warned again with the recording's name in front, ``"path_7:
+    mekf: ..."``.
 
     align: per flight, fit one mount rotation and clock offset between the reference and
     the FIRST spec's estimate (:func:`~windahrs.experiments.compare.align_reference`, as
@@ -525,7 +548,8 @@ def bench_data(
         for k, (spec, est) in enumerate(zip(specs, estimators, strict=True)):
             t0 = time.perf_counter()
             # The filters after the first run on the GNSS the alignment moved (if any).
-            results, failures = run_estimators(outcome.run_flight(flight), [(spec, est)], keep_going=True)
+            with _naming_warnings(name):
+                results, failures = run_estimators(outcome.run_flight(flight), [(spec, est)], keep_going=True)
             seconds = time.perf_counter() - t0
             runs.append((spec, results[0][1] if results else failures[spec], seconds))
             done += 1
