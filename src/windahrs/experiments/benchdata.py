@@ -458,16 +458,12 @@ def _naming_warnings(recording: str) -> Iterator[None]:
     the recording's name in front: over a folder of recordings, "mekf: 46 IMU samples not
     propagated" alone does not say which one. Issued when the block ends, also when it
     raises."""
-    held: list[warnings.WarningMessage] = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            try:
-                yield
-            finally:
-                held = list(caught)
-    finally:
-        for w in held:
+            yield
+    finally:  # (once the recording has stopped, or they would be caught again)
+        for w in caught:
             warnings.warn_explicit(f"{recording}: {w.message}", w.category, w.filename, w.lineno)
 
 
