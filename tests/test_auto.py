@@ -15,7 +15,15 @@ from conftest import require_data
 from windahrs.cli import main
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.estimate import Estimate, load_estimate
-from windahrs.filters.auto import MAX_GNSS_TIMING_S, Auto, describe_choice, usable_streams
+from windahrs.filters.auto import (
+    HANDOVER_HEADING_SIGMA,
+    MAX_GNSS_TIMING_S,
+    Auto,
+    describe_choice,
+    handover_index,
+    splice_at,
+    usable_streams,
+)
 from windahrs.filters.base import merge_events
 from windahrs.filters.eskf import InsWind, Mekf
 from windahrs.filters.registry import make_estimator
@@ -218,3 +226,109 @@ def test_auto_leaves_out_a_gnss_stream_declared_unsynchronised() -> None:
         warnings.simplefilter("ignore")
         est = wa.estimator("auto").run(flight)
     assert est.meta["auto"] == "mekf" and "another clock" in est.meta["auto_reason"]
+
+
+@pytest.fixture(scope="module")
+def headless() -> wa.Flight:
+    """A quadrotor with GNSS velocity and no magnetometer: the INS starts with its heading unknown."""
+    return wa.simulate("quadrotor", seed=3, duration=20.0, wind=6.0).replace(mag=None)
+
+
+def _inclination_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The tilt between attitudes a and b (N, 4), deg (BROAD's inclination of a b^-1)."""
+    from windahrs.experiments.benchdata import split_error
+    from windahrs.rotation import quat_conj, quat_mul
+
+    return np.degrees(split_error(quat_mul(a, quat_conj(b)))[2])
+
+
+def _heading_deg(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q.T
+    return np.degrees(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def test_without_a_magnetometer_mekf_hands_over_to_the_ins_once_it_knows_its_heading(headless: wa.Flight) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = make_estimator("auto").run(headless)
+        mekf = make_estimator("mekf").run(headless)
+        ins = make_estimator("ins-wind").run(headless)
+    k = handover_index(ins)
+    assert k is not None and 0 < k < len(ins.t)
+    # the INS's own covariance: its heading's 1 sigma first under 15 deg at k
+    assert est.meta["auto"] == "ins-wind" and est.meta["sensors"] == "imu,gnss"
+    assert est.meta["auto_handover_s"] == pytest.approx(ins.t[k] - ins.t[0])
+    assert "tilt with the INS's heading until" in est.meta["auto_reason"]
+    # from k on, the INS; before, mekf's tilt with the INS's heading
+    np.testing.assert_array_equal(est.q_nb[k:], ins.q_nb[k:])
+    np.testing.assert_allclose(_inclination_deg(est.q_nb[:k], mekf.q_nb[:k]), 0.0, atol=1e-4)  # (arccos near 1)
+    np.testing.assert_allclose(np.cos(np.radians(_heading_deg(est.q_nb[:k]) - _heading_deg(ins.q_nb[:k]))), 1.0,
+                               atol=1e-9)
+    np.testing.assert_array_equal(est.gyro_bias_b[:k], mekf.gyro_bias_b[:k])
+    assert est.v_n is not None and est.wind_n is not None  # the INS's states, the whole flight
+    # the output is checked again: a tilt alert of the INS's start is not carried over
+    assert all(r[0] >= 0 for r in est.alerts.get("tilt", np.empty((0, 3))))
+    assert "ins-wind" in (describe_choice(est) or "")
+
+
+def test_the_handover_is_at_the_first_sample_whose_heading_sigma_is_under_15_deg(headless: wa.Flight) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ins = make_estimator("ins-wind").run(headless)
+    k = handover_index(ins)
+    assert ins.cov is not None and k is not None
+    q = ins.q_nb
+    d = np.stack([2 * (q[:, 1] * q[:, 3] - q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] + q[:, 0] * q[:, 1]),
+                  q[:, 0] ** 2 - q[:, 1] ** 2 - q[:, 2] ** 2 + q[:, 3] ** 2], axis=1)
+    sd = np.sqrt(np.einsum("ni,nij,nj->n", d, ins.cov[:, :3, :3], d))
+    assert sd[k] < HANDOVER_HEADING_SIGMA and not (sd[:k] < HANDOVER_HEADING_SIGMA).any()
+    assert handover_index(dataclasses.replace(ins, cov=None)) is None
+    assert handover_index(ins, sigma=1e-9) is None  # never that sure: no handover
+
+
+def test_the_spliced_covariance_is_mekfs_before_the_handover_with_the_ins_heading_variance(
+    headless: wa.Flight,
+) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mekf = make_estimator("mekf").run(headless)
+        ins = make_estimator("ins-wind").run(headless)
+    k = 200
+    out = splice_at(mekf, ins, k)
+    assert out.cov is not None and ins.cov is not None and mekf.cov is not None
+    att, bg = [0, 1, 2], [ins.state_labels.index(f"bg_{a}") for a in "xyz"]
+    # after the handover: the INS's, untouched
+    np.testing.assert_array_equal(out.cov[k:], ins.cov[k:])
+    # before: mekf's bias block, no correlation with the INS's other states
+    np.testing.assert_array_equal(out.cov[:k][:, bg][:, :, bg], mekf.cov[:k, 3:6, 3:6])
+    others = [i for i in range(len(ins.state_labels)) if i not in att + bg]
+    assert not out.cov[:k][:, att + bg][:, :, others].any()
+    np.testing.assert_array_equal(out.cov[:k][:, others][:, :, others], ins.cov[:k][:, others][:, :, others])
+    # ... its attitude block mekf's but along the vertical, where the INS's heading variance is
+    q = out.q_nb[:k]
+    d = np.stack([2 * (q[:, 1] * q[:, 3] - q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] + q[:, 0] * q[:, 1]),
+                  q[:, 0] ** 2 - q[:, 1] ** 2 - q[:, 2] ** 2 + q[:, 3] ** 2], axis=1)
+    along = lambda c: np.einsum("ni,nij,nj->n", d, c[:, :3, :3], d)  # noqa: E731
+    np.testing.assert_allclose(along(out.cov[:k]), along(ins.cov[:k]), rtol=1e-9)
+    e = np.cross(d, [0.0, 0.0, 1.0]) + np.cross(d, [1.0, 0.0, 0.0])  # a direction off the vertical
+    e -= np.sum(e * d, axis=1, keepdims=True) * d
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.einsum("ni,nij,nj->n", e, out.cov[:k, :3, :3], e),
+                               np.einsum("ni,nij,nj->n", e, mekf.cov[:k, :3, :3], e), rtol=1e-9)
+    assert "tilt" not in out.alerts and "bias" not in out.alerts
+
+
+def test_without_a_magnetometer_the_smoother_is_the_ins_one(fw: wa.Flight) -> None:
+    """The smoother's backward pass carries the heading back to the start: auto-smooth runs
+    [ins-wind]'s smoother on GNSS without a magnetometer, bit for bit."""
+    headless = fw.replace(mag=None, air=None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        smoothed = make_estimator("auto-smooth").run(headless)
+        ins = make_estimator("ins-wind-smooth").run(headless)
+        off = make_estimator("auto-smooth:mag_mode=off").run(fw.replace(air=None))
+    assert smoothed.meta["auto"] == "ins-wind" and smoothed.meta["sensors"] == "imu,gnss"
+    assert "smoothed: the backward pass carries the heading" in smoothed.meta["auto_reason"]
+    assert "auto_handover_s" not in smoothed.meta
+    np.testing.assert_array_equal(smoothed.q_nb, ins.q_nb)
+    assert off.meta["auto"].startswith("ins-wind")  # a magnetometer it is told not to fuse: the same rule

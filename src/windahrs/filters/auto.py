@@ -8,7 +8,9 @@ the flight has              auto runs
 ==========================  ===============================================================
 GNSS velocity               [ins-wind]: the accelerometer as the INS input, GNSS velocity,
                             the magnetometer (3-D, with its hard-iron bias) and air data
-                            (pitot and vanes) when present, wind states
+                            (pitot and vanes) when present, wind states; without a
+                            magnetometer, [mekf]'s tilt until the INS knows its heading
+                            (below)
 no GNSS, air data           [mekf] with its field defaults (:data:`~windahrs.filters.eskf.
                             MEKF_FIELD`) and ``accel_compensation = "airspeed"``; the
                             magnetometer when present
@@ -17,18 +19,39 @@ no GNSS, no air data        [mekf] with its field defaults; the magnetometer whe
 ==========================  ===============================================================
 
 A GNSS stream the flight declares unsynchronised (``meta["gnss.timing_sigma_s"]`` above
-:data:`MAX_GNSS_TIMING_S`) counts as absent, and so does a GNSS stream on a flight without
-a magnetometer (or with ``mag_mode=off``): the INS starts with its heading unknown (init_yaw
-pi, its default then), and until the GNSS accelerations turn it, GNSS velocity fused under a
-heading wrong by tens of degrees tilts it. PX4's EKF2 fuses GNSS only once its yaw is
-aligned (by the magnetometer, or in flight by its GSF yaw estimator), which windahrs does
-not have yet. Measured on the ANSFL quadrotor (no magnetometer) with its GNSS moved onto the
-IMU's clock by ``--align``, median tilt on the even / odd flights: [ins-wind] 5.43 / 4.84
-deg, [mekf] 4.69 / 6.40 when this was chosen, better on one half and worse on the other
+:data:`MAX_GNSS_TIMING_S`) counts as absent.
+
+GNSS velocity without a magnetometer (or with ``mag_mode=off``): [mekf] and [ins-wind] run
+side by side, and the output is [mekf]'s tilt turned to the INS's heading until the first
+sample at which the INS's covariance puts its heading's 1 sigma under
+:data:`HANDOVER_HEADING_SIGMA` (:func:`handover_index`), the INS's from then on
+(:func:`splice_at`); ``meta["auto_handover_s"]`` says when, and without such a sample
+[mekf] runs alone. Why: the INS starts with its heading unknown (init_yaw pi, its default
+then), and until the GNSS accelerations turn it, GNSS velocity fused under a heading wrong
+by tens of degrees tilts it; once it knows its heading it is the better of the two. On the
+16 ANSFL flights (docs/RESULTS.md section 34) median tilt 3.965 deg against [mekf]'s 4.442
+and [ins-wind]'s 5.299 (the handover 0.6-2.7 s after the start; even / odd flights 4.17 /
+3.82 against [mekf]'s 4.34 / 4.85; nothing tuned: the threshold is PX4's); the total after
+one constant heading offset rises from 5.76 to 17.0 deg: the INS's heading is true north
+and wrong for its first seconds, [mekf]'s relative and steady. PX4's EKF2 fuses GNSS only
+once its yaw is aligned (by the magnetometer, or in flight by its GSF yaw estimator); that
+estimator ahead of the INS's start was tried and measured worse (section 34: the INS waits
+6-7 s for it, and its attitude meanwhile is poorer than [mekf]'s). Until stop 28 GNSS
+counted as absent on such a flight, measured then on the ANSFL quadrotor with its GNSS moved
+onto the IMU's clock by ``--align``, median tilt on the even / odd flights: [ins-wind] 5.43
+/ 4.84 deg, [mekf] 4.69 / 6.40 when that was chosen, better on one half and worse on the other
 (docs/RESULTS.md, sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's
 10 deg); at stop 22, [ins-wind] 5.43 / 4.84 (all 16: 5.30), [mekf] 4.46 / 6.20 (all 16:
-4.54; docs/RESULTS.md section 23). After the
-run, an INS that fails the tilt check is replaced by the run without GNSS when that one fails
+4.54; docs/RESULTS.md section 23).
+
+The smoother (``auto-smooth``, ``--smooth``) runs the INS's smoother on such a flight: its
+backward pass carries the heading the INS converged to back to the start, which undoes what
+the causal INS gets wrong before it converges. Measured on the same 16 flights (docs/RESULTS.md
+section 34), median tilt / total: [ins-wind]'s smoother 2.737 / 2.940, [mekf]'s 3.376 /
+5.046, vqf-offline 3.542 / 4.929; on the even / odd flights, tilt 3.38 / 2.35 against
+[mekf]'s 3.84 / 3.09 (no parameter chosen: the rule is the only change).
+
+After the run, an INS that fails the tilt check is replaced by the run without GNSS when that one fails
 it for less time (see :meth:`Auto.run`).
 
 Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
@@ -71,21 +94,27 @@ Streaming: ``auto.stream(site, has=...)`` chooses from ``has``, the streams you 
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from windahrs.core.kernel import CompiledEstimator, CompiledStreamer
 from windahrs.estimate import Estimate
 from windahrs.filters.base import Estimator, InitialState
+from windahrs.filters.checks import checked
 from windahrs.filters.eskf import InsWind, Mekf
 from windahrs.filters.params import EskfParams, changes_from_mapping, read_param_file
 from windahrs.flight import Flight, Site
+from windahrs.rotation import quat_mul
 
-__all__ = ["Auto", "AutoChoice", "describe_choice", "usable_streams"]
+__all__ = ["Auto", "AutoChoice", "describe_choice", "handover_index", "splice_at", "usable_streams"]
+
+F64 = NDArray[np.float64]
 
 #: A GNSS stream whose time stamps the flight declares uncertain beyond this (s,
 #: ``Flight.meta["gnss.timing_sigma_s"]``, e.g. a velocity differentiated from positions
@@ -101,6 +130,13 @@ MAX_GNSS_TIMING_S = 0.1
 #: the run without GNSS (:meth:`Auto.run`); a shorter, transient failure (a launch, a lock-out
 #: its GNSS reset ended) keeps the INS and its wind and velocity (ALFA: 10.7 s of 132 s).
 FALLBACK_SHARE = 0.25
+
+#: On a flight with GNSS velocity and no magnetometer, the INS takes over from [mekf] once the
+#: 1 sigma of its heading is below this, rad: PX4 EKF2's bound for a usable heading from its
+#: yaw estimator (EKFGSF_yaw, 15 deg), the heading error at which an INS's GNSS updates turn
+#: it rather than tilt it (docs/RESULTS.md section 34; 10 deg measured 3.855 deg median tilt on
+#: ANSFL, 15 deg 3.965, 25 deg 4.658: not tuned, PX4's kept).
+HANDOVER_HEADING_SIGMA = math.radians(15.0)
 
 #: The estimators auto chooses from, by registry name.
 CANDIDATES: dict[str, type[CompiledEstimator]] = {"ins-wind": InsWind, "mekf": Mekf}
@@ -238,7 +274,8 @@ class Auto(Estimator):
         streams = usable_streams(flight)
         timing = float(flight.meta.get("gnss.timing_sigma_s", 0.0) or 0.0)
         unsynced = "gnss" in streams and timing > MAX_GNSS_TIMING_S
-        headless = "gnss" in streams and ("mag" not in streams or self.overrides.get("mag_mode") == "off")
+        no_heading = "gnss" in streams and ("mag" not in streams or self.overrides.get("mag_mode") == "off")
+        headless = no_heading and not smooth  # (the causal run's rule: see the module docstring)
         choice = self.choose(streams - {"gnss"} if unsynced or headless else streams)
         if unsynced:
             choice = dataclasses.replace(
@@ -248,7 +285,13 @@ class Auto(Estimator):
             choice = dataclasses.replace(
                 choice, reason="GNSS velocity without a magnetometer: no heading to start the INS with, "
                 "attitude without it")
+        elif no_heading:
+            choice = dataclasses.replace(
+                choice, reason="GNSS velocity without a magnetometer, smoothed: the backward pass carries the "
+                "heading the INS converges to back to the start")
         est, caught = _run_quietly(choice.estimator, flight, initial, smooth)
+        if headless and not unsynced and initial is None:
+            est, caught, choice = self._handover(flight, streams, est, caught, choice)
         duration = float(flight.imu.t[-1] - flight.imu.t[0])
         if "gnss" in choice.sensors and _alert_seconds(est) > FALLBACK_SHARE * duration:
             other = self.choose(streams - {"gnss"})
@@ -262,6 +305,36 @@ class Auto(Estimator):
             text = str(w.message).replace(est.filter, f"{self.label} ({est.filter})", 1)
             warnings.warn(text, w.category, stacklevel=2)
         return dataclasses.replace(est, filter=self.label, meta={**est.meta, **choice.meta()})
+
+    def _handover(
+        self,
+        flight: Flight,
+        streams: frozenset[str],
+        before: Estimate,
+        caught: list[warnings.WarningMessage],
+        choice: AutoChoice,
+    ) -> tuple[Estimate, list[warnings.WarningMessage], AutoChoice]:
+        """GNSS without a magnetometer (module docstring): the INS run beside ``before``
+        (the run without GNSS, ``choice``), and ``before``'s tilt with the INS's heading
+        until the INS knows its heading (:func:`handover_index`), the INS after
+        (:func:`splice_at`), checked again (:func:`~windahrs.filters.checks.checked`); or
+        ``before`` when the INS never knows it. Returns the estimate, its warnings and what ran."""
+        ins_choice = self.choose(streams)
+        ins, _ = _run_quietly(ins_choice.estimator, flight, None)
+        k = handover_index(ins)
+        if k is None:
+            why = (f"; the INS beside it never knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
+                   "(1 sigma)")
+            return before, caught, dataclasses.replace(choice, reason=choice.reason + why)
+        t_h = float(flight.imu.t[k] - flight.imu.t[0])
+        with warnings.catch_warnings(record=True) as held:
+            warnings.simplefilter("always")
+            est = checked(splice_at(before, ins, k), flight)
+        reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
+                  f"{t_h:.2f} s, when the INS knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
+                  "(1 sigma), the INS after")
+        est = dataclasses.replace(est, meta={**est.meta, "auto_handover_s": t_h})
+        return est, list(held), dataclasses.replace(ins_choice, reason=reason)
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
@@ -285,6 +358,72 @@ def _run_quietly(
         else:
             out = est.run(flight, initial=initial)
     return out, list(caught)
+
+
+def _heading(q: F64) -> F64:
+    """The heading (3-2-1 yaw) of attitudes q_nb (N, 4), rad."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _vertical_b(q: F64) -> F64:
+    """The nav vertical in the body frame, C_bn e_3 (N, 3), of attitudes q_nb (N, 4)."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z], axis=1)
+
+
+def handover_index(est: Estimate, sigma: float = HANDOVER_HEADING_SIGMA) -> int | None:
+    """The first IMU sample at which ``est``'s recorded covariance puts the 1 sigma of its
+    heading (the attitude's variance about the nav vertical, ``d^T P_att d``, d = C_bn e_3)
+    below ``sigma`` rad; None when it never does, or records no attitude covariance."""
+    if est.cov is None or est.cov.shape[1] < 3 or est.state_labels[:3] != ("att_x", "att_y", "att_z"):
+        return None
+    rows = est.cov_index if est.cov_index is not None else np.arange(len(est.cov))
+    d = _vertical_b(est.q_nb[rows])
+    var = np.einsum("ni,nij,nj->n", d, est.cov[:, :3, :3], d)
+    ok = np.flatnonzero(var < sigma * sigma)  # (NaN rows: not below)
+    return int(rows[ok[0]]) if len(ok) else None
+
+
+def splice_at(before: Estimate, after: Estimate, k: int) -> Estimate:
+    """``after`` with its first k samples' attitude taken from ``before``'s tilt turned to
+    ``after``'s heading (``before`` knows where down is, ``after`` where north is), and their
+    gyro bias from ``before``. The covariance (``after``'s labels) follows: on those
+    samples the blocks of the states ``before`` estimates are its own, uncorrelated with the
+    others, the attitude's variance about the vertical ``after``'s (``P + (v_a - v_b) d
+    d^T``, v the variance along d = C_bn e_3). The alerts are dropped: check the result
+    again (:func:`~windahrs.filters.checks.checked`)."""
+    q_b = before.q_nb[:k]
+    half = 0.5 * (_heading(after.q_nb[:k]) - _heading(q_b))
+    turn = np.stack([np.cos(half), np.zeros(k), np.zeros(k), np.sin(half)], axis=1)
+    q = after.q_nb.copy()
+    turned = quat_mul(turn, q_b)
+    q[:k] = turned / np.linalg.norm(turned, axis=1, keepdims=True)
+    bg = None
+    if after.gyro_bias_b is not None:
+        bg = after.gyro_bias_b.copy()
+        if before.gyro_bias_b is not None:
+            bg[:k] = before.gyro_bias_b[:k]
+    cov = after.cov
+    if cov is not None and before.cov is not None:
+        cov = cov.copy()
+        rows = after.cov_index if after.cov_index is not None else np.arange(len(cov))
+        rows_b = before.cov_index if before.cov_index is not None else np.arange(len(before.cov))
+        n = int(np.searchsorted(rows, k))  # (the recorded rows before the handover)
+        mine = [after.state_labels.index(s) for s in before.state_labels if s in after.state_labels]
+        theirs = [before.state_labels.index(after.state_labels[i]) for i in mine]
+        src = before.cov[np.clip(np.searchsorted(rows_b, rows[:n]), 0, len(rows_b) - 1)]
+        block = src[:, theirs][:, :, theirs]
+        if mine[:3] == [0, 1, 2]:  # the heading's variance: the INS's
+            d = _vertical_b(q[rows[:n]])
+            v_a = np.einsum("ni,nij,nj->n", d, cov[:n, :3, :3], d)
+            v_b = np.einsum("ni,nij,nj->n", d, block[:, :3, :3], d)
+            block[:, :3, :3] += (v_a - v_b)[:, None, None] * d[:, :, None] * d[:, None, :]
+        cov[:n, mine, :] = 0.0
+        cov[:n, :, mine] = 0.0
+        cov[np.arange(n)[:, None, None], np.array(mine)[None, :, None], np.array(mine)[None, None, :]] = block
+    alerts = {name: spans for name, spans in after.alerts.items() if name not in ("tilt", "bias")}
+    return dataclasses.replace(after, q_nb=q, gyro_bias_b=bg, cov=cov, alerts=alerts)
 
 
 def _alert_seconds(est: Estimate) -> float:
