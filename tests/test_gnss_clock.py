@@ -114,15 +114,17 @@ def test_not_declared_or_not_fitted_leaves_the_gnss(late_dir: Path) -> None:
         align_gnss_clock(flight, Alignment(q_mount=al.q_mount, time_offset_s=0.1, time_sigma_s=-1.0))
 
 
-def test_auto_leaves_out_gnss_without_a_heading(sim: Flight) -> None:
+def test_auto_hands_over_to_the_ins_once_it_knows_a_heading(sim: Flight) -> None:
+    """Without a magnetometer the INS has no heading to start with: mekf's tilt until it
+    knows one (filters.auto; the mechanics in tests/test_auto.py)."""
     headless = sim.replace(mag=None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         est = make_estimator("auto").run(headless)
         with_mag = make_estimator("auto").run(sim)
-    assert est.meta["auto"].startswith("mekf") and "gnss" not in est.meta["sensors"]
-    assert "without a magnetometer" in est.meta["auto_reason"]
-    assert with_mag.meta["auto"] == "ins-wind"
+    assert est.meta["auto"] == "ins-wind" and est.meta["sensors"] == "imu,gnss"
+    assert "without a magnetometer" in est.meta["auto_reason"] and est.meta["auto_handover_s"] > 0
+    assert with_mag.meta["auto"] == "ins-wind" and "auto_handover_s" not in with_mag.meta
 
 
 def test_real_ansfl_flight_shift_agrees_with_the_gnss_accelerations() -> None:

@@ -88,7 +88,9 @@ gives the same answers), ``sensors`` (the streams it fused, e.g. ``"imu,mag,gnss
 ``auto_reason`` and, when some overrides were not used, ``auto_ignored``.
 
 Streaming: ``auto.stream(site, has=...)`` chooses from ``has``, the streams you announce
-(default: all four, so [ins-wind]; announce only what you will feed).
+(default: all four, so [ins-wind]; announce only what you will feed). A streamer runs one
+estimator: it does not hand over from [mekf] on GNSS without a magnetometer (announced
+without "mag", it is [ins-wind] from the start).
 """
 
 from __future__ import annotations
