@@ -20,8 +20,9 @@ from windahrs.filters.auto import (
     MAX_GNSS_TIMING_S,
     Auto,
     describe_choice,
+    gate_closed,
     handover_index,
-    splice_at,
+    splice,
     usable_streams,
 )
 from windahrs.filters.base import merge_events
@@ -259,7 +260,8 @@ def test_without_a_magnetometer_mekf_hands_over_to_the_ins_once_it_knows_its_hea
     assert est.meta["auto"] == "ins-wind" and est.meta["sensors"] == "imu,gnss"
     assert est.meta["auto_handover_s"] == pytest.approx(ins.t[k] - ins.t[0])
     assert "tilt with the INS's heading until" in est.meta["auto_reason"]
-    # from k on, the INS; before, mekf's tilt with the INS's heading
+    # from k on, the INS (its GNSS gate never closed here); before, mekf's tilt with the INS's heading
+    assert not gate_closed(ins).any() and est.meta["auto_gate_closed_s"] == 0.0
     np.testing.assert_array_equal(est.q_nb[k:], ins.q_nb[k:])
     np.testing.assert_allclose(_inclination_deg(est.q_nb[:k], mekf.q_nb[:k]), 0.0, atol=1e-4)  # (arccos near 1)
     np.testing.assert_allclose(np.cos(np.radians(_heading_deg(est.q_nb[:k]) - _heading_deg(ins.q_nb[:k]))), 1.0,
@@ -294,7 +296,8 @@ def test_the_spliced_covariance_is_mekfs_before_the_handover_with_the_ins_headin
         mekf = make_estimator("mekf").run(headless)
         ins = make_estimator("ins-wind").run(headless)
     k = 200
-    out = splice_at(mekf, ins, k)
+    take = np.arange(len(ins.t)) < k
+    out = splice(mekf, ins, take)
     assert out.cov is not None and ins.cov is not None and mekf.cov is not None
     att, bg = [0, 1, 2], [ins.state_labels.index(f"bg_{a}") for a in "xyz"]
     # after the handover: the INS's, untouched
@@ -332,3 +335,40 @@ def test_without_a_magnetometer_the_smoother_is_the_ins_one(fw: wa.Flight) -> No
     assert "auto_handover_s" not in smoothed.meta
     np.testing.assert_array_equal(smoothed.q_nb, ins.q_nb)
     assert off.meta["auto"].startswith("ins-wind")  # a magnetometer it is told not to fuse: the same rule
+
+
+def test_gate_closed_is_where_the_latest_sample_was_rejected() -> None:
+    from windahrs.estimate import Innovations
+
+    t = np.arange(0.0, 2.0, 0.1)  # IMU samples
+    gnss = Innovations(t=np.array([0.25, 0.55, 0.85, 1.15]), nu=np.zeros((4, 3)), nis=np.zeros(4),
+                       accepted=np.array([True, False, False, True]))
+    from types import SimpleNamespace
+
+    est = SimpleNamespace(t=t, innovations={"gnss": gnss})  # (what gate_closed reads of an Estimate)
+    closed = gate_closed(est)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(np.flatnonzero(closed), np.flatnonzero((t >= 0.55) & (t < 1.15)))
+    assert not gate_closed(est, "mag").any()  # type: ignore[arg-type]  # no such log: never closed
+
+
+def test_mekf_tilt_stands_in_while_the_ins_gnss_gate_is_closed(headless: wa.Flight) -> None:
+    """After the handover, an INS whose GNSS is rejected (here: GNSS 20 m/s off for 3 s)
+    gives way to mekf's tilt (with its own heading) until GNSS passes its gate again."""
+    g = headless.gnss
+    assert g is not None
+    v = g.v_n.copy()
+    jump = (g.t > 12.0) & (g.t < 15.0)
+    v[jump, 0] += 20.0
+    faulty = headless.replace(gnss=dataclasses.replace(g, v_n=v))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = make_estimator("auto").run(faulty)
+        mekf = make_estimator("mekf").run(faulty)
+        ins = make_estimator("ins-wind").run(faulty)
+    closed = gate_closed(ins)
+    k = handover_index(ins)
+    assert k is not None and closed.any() and not closed[:k].any()
+    assert est.meta["auto_gate_closed_s"] > 1.0
+    np.testing.assert_allclose(_inclination_deg(est.q_nb[closed], mekf.q_nb[closed]), 0.0, atol=1e-4)
+    open_ = ~closed & (np.arange(len(ins.t)) >= k)
+    np.testing.assert_array_equal(est.q_nb[open_], ins.q_nb[open_])

@@ -25,8 +25,15 @@ GNSS velocity without a magnetometer (or with ``mag_mode=off``): [mekf] and [ins
 side by side, and the output is [mekf]'s tilt turned to the INS's heading until the first
 sample at which the INS's covariance puts its heading's 1 sigma under
 :data:`HANDOVER_HEADING_SIGMA` (:func:`handover_index`), the INS's from then on
-(:func:`splice_at`); ``meta["auto_handover_s"]`` says when, and without such a sample
-[mekf] runs alone. Why: the INS starts with its heading unknown (init_yaw pi, its default
+(:func:`splice`); ``meta["auto_handover_s"]`` says when, and without such a sample
+[mekf] runs alone. After it, [mekf]'s tilt is used again (with the INS's heading) while the
+INS's latest GNSS sample was rejected by its gate (:func:`gate_closed`): GNSS then
+disagrees with the INS's state and no longer corrects it, while gravity still checks
+[mekf]'s tilt at every sample (ArduPilot's EKF3 likewise moves to the lane whose
+innovations pass); ``meta["auto_gate_closed_s"]`` says for how long. On ANSFL path_16 the
+INS claimed its heading 1.6 s after the start while still about 110 deg off, then rejected
+GNSS for 5 s: tilt 9.21 deg with the handover alone, 4.72 with this; the other 15 flights
+unchanged. Why: the INS starts with its heading unknown (init_yaw pi, its default
 then), and until the GNSS accelerations turn it, GNSS velocity fused under a heading wrong
 by tens of degrees tilts it; once it knows its heading it is the better of the two. On the
 16 ANSFL flights (docs/RESULTS.md section 34) median tilt 3.965 deg against [mekf]'s 4.442
@@ -114,7 +121,7 @@ from windahrs.filters.params import EskfParams, changes_from_mapping, read_param
 from windahrs.flight import Flight, Site
 from windahrs.rotation import quat_mul
 
-__all__ = ["Auto", "AutoChoice", "describe_choice", "handover_index", "splice_at", "usable_streams"]
+__all__ = ["Auto", "AutoChoice", "describe_choice", "gate_closed", "handover_index", "splice", "usable_streams"]
 
 F64 = NDArray[np.float64]
 
@@ -318,9 +325,10 @@ class Auto(Estimator):
     ) -> tuple[Estimate, list[warnings.WarningMessage], AutoChoice]:
         """GNSS without a magnetometer (module docstring): the INS run beside ``before``
         (the run without GNSS, ``choice``), and ``before``'s tilt with the INS's heading
-        until the INS knows its heading (:func:`handover_index`), the INS after
-        (:func:`splice_at`), checked again (:func:`~windahrs.filters.checks.checked`); or
-        ``before`` when the INS never knows it. Returns the estimate, its warnings and what ran."""
+        until the INS knows its heading (:func:`handover_index`) and while its GNSS gate is
+        closed (:func:`gate_closed`), the INS otherwise (:func:`splice`), checked again
+        (:func:`~windahrs.filters.checks.checked`); or ``before`` when the INS never knows
+        it. Returns the estimate, its warnings and what ran."""
         ins_choice = self.choose(streams)
         ins, _ = _run_quietly(ins_choice.estimator, flight, None)
         k = handover_index(ins)
@@ -329,13 +337,19 @@ class Auto(Estimator):
                    "(1 sigma)")
             return before, caught, dataclasses.replace(choice, reason=choice.reason + why)
         t_h = float(flight.imu.t[k] - flight.imu.t[0])
+        closed = gate_closed(ins)
+        closed[:k] = False
+        take = closed.copy()
+        take[:k] = True
         with warnings.catch_warnings(record=True) as held:
             warnings.simplefilter("always")
-            est = checked(splice_at(before, ins, k), flight)
+            est = checked(splice(before, ins, take), flight)
+        dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
                   f"{t_h:.2f} s, when the INS knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
-                  "(1 sigma), the INS after")
-        est = dataclasses.replace(est, meta={**est.meta, "auto_handover_s": t_h})
+                  "(1 sigma), then the INS's but while its GNSS gate is closed")
+        meta = {"auto_handover_s": t_h, "auto_gate_closed_s": round(float(closed.sum()) * dt, 3)}
+        est = dataclasses.replace(est, meta={**est.meta, **meta})
         return est, list(held), dataclasses.replace(ins_choice, reason=reason)
 
     def streamer(
@@ -387,43 +401,55 @@ def handover_index(est: Estimate, sigma: float = HANDOVER_HEADING_SIGMA) -> int 
     return int(rows[ok[0]]) if len(ok) else None
 
 
-def splice_at(before: Estimate, after: Estimate, k: int) -> Estimate:
-    """``after`` with its first k samples' attitude taken from ``before``'s tilt turned to
-    ``after``'s heading (``before`` knows where down is, ``after`` where north is), and their
-    gyro bias from ``before``. The covariance (``after``'s labels) follows: on those
-    samples the blocks of the states ``before`` estimates are its own, uncorrelated with the
-    others, the attitude's variance about the vertical ``after``'s (``P + (v_a - v_b) d
-    d^T``, v the variance along d = C_bn e_3). The alerts are dropped: check the result
-    again (:func:`~windahrs.filters.checks.checked`)."""
-    q_b = before.q_nb[:k]
-    half = 0.5 * (_heading(after.q_nb[:k]) - _heading(q_b))
-    turn = np.stack([np.cos(half), np.zeros(k), np.zeros(k), np.sin(half)], axis=1)
+def gate_closed(est: Estimate, sensor: str = "gnss") -> NDArray[np.bool_]:
+    """(N,) per IMU sample of ``est``: the latest ``sensor`` sample so far was rejected by
+    its gate (the state disagrees with that sensor, which no longer corrects it); all False
+    without that log."""
+    inn = est.innovations.get(sensor)
+    if inn is None or len(inn.t) == 0:
+        return np.zeros(len(est.t), dtype=bool)
+    j = np.searchsorted(inn.t, est.t, side="right") - 1
+    return (j >= 0) & ~np.asarray(inn.accepted, dtype=bool)[np.clip(j, 0, None)]
+
+
+def splice(before: Estimate, after: Estimate, take: NDArray[np.bool_]) -> Estimate:
+    """``after`` with the attitude of the samples ``take`` (N,) taken from ``before``'s tilt
+    turned to ``after``'s heading (``before`` knows where down is, ``after`` where north
+    is), and their gyro bias from ``before``. The covariance (``after``'s labels) follows:
+    on those samples the blocks of the states ``before`` estimates are its own, uncorrelated
+    with the others, the attitude's variance about the vertical ``after``'s (``P + (v_a -
+    v_b) d d^T``, v the variance along d = C_bn e_3). The alerts are dropped: check the
+    result again (:func:`~windahrs.filters.checks.checked`)."""
+    idx = np.flatnonzero(take)
+    half = 0.5 * (_heading(after.q_nb[idx]) - _heading(before.q_nb[idx]))
+    turn = np.stack([np.cos(half), np.zeros(len(idx)), np.zeros(len(idx)), np.sin(half)], axis=1)
     q = after.q_nb.copy()
-    turned = quat_mul(turn, q_b)
-    q[:k] = turned / np.linalg.norm(turned, axis=1, keepdims=True)
+    turned = quat_mul(turn, before.q_nb[idx])
+    q[idx] = turned / np.linalg.norm(turned, axis=1, keepdims=True)
     bg = None
     if after.gyro_bias_b is not None:
         bg = after.gyro_bias_b.copy()
         if before.gyro_bias_b is not None:
-            bg[:k] = before.gyro_bias_b[:k]
+            bg[idx] = before.gyro_bias_b[idx]
     cov = after.cov
     if cov is not None and before.cov is not None:
         cov = cov.copy()
         rows = after.cov_index if after.cov_index is not None else np.arange(len(cov))
         rows_b = before.cov_index if before.cov_index is not None else np.arange(len(before.cov))
-        n = int(np.searchsorted(rows, k))  # (the recorded rows before the handover)
+        r = np.flatnonzero(take[rows])  # (the recorded rows of those samples)
         mine = [after.state_labels.index(s) for s in before.state_labels if s in after.state_labels]
         theirs = [before.state_labels.index(after.state_labels[i]) for i in mine]
-        src = before.cov[np.clip(np.searchsorted(rows_b, rows[:n]), 0, len(rows_b) - 1)]
+        src = before.cov[np.clip(np.searchsorted(rows_b, rows[r]), 0, len(rows_b) - 1)]
         block = src[:, theirs][:, :, theirs]
         if mine[:3] == [0, 1, 2]:  # the heading's variance: the INS's
-            d = _vertical_b(q[rows[:n]])
-            v_a = np.einsum("ni,nij,nj->n", d, cov[:n, :3, :3], d)
+            d = _vertical_b(q[rows[r]])
+            v_a = np.einsum("ni,nij,nj->n", d, cov[r, :3, :3], d)
             v_b = np.einsum("ni,nij,nj->n", d, block[:, :3, :3], d)
             block[:, :3, :3] += (v_a - v_b)[:, None, None] * d[:, :, None] * d[:, None, :]
-        cov[:n, mine, :] = 0.0
-        cov[:n, :, mine] = 0.0
-        cov[np.arange(n)[:, None, None], np.array(mine)[None, :, None], np.array(mine)[None, None, :]] = block
+        m = np.array(mine)
+        cov[r[:, None], m[None, :], :] = 0.0
+        cov[r[:, None], :, m[None, :]] = 0.0
+        cov[r[:, None, None], m[None, :, None], m[None, None, :]] = block
     alerts = {name: spans for name, spans in after.alerts.items() if name not in ("tilt", "bias")}
     return dataclasses.replace(after, q_nb=q, gyro_bias_b=bg, cov=cov, alerts=alerts)
 
