@@ -372,3 +372,21 @@ def test_mekf_tilt_stands_in_while_the_ins_gnss_gate_is_closed(headless: wa.Flig
     np.testing.assert_allclose(_inclination_deg(est.q_nb[closed], mekf.q_nb[closed]), 0.0, atol=1e-4)
     open_ = ~closed & (np.arange(len(ins.t)) >= k)
     np.testing.assert_array_equal(est.q_nb[open_], ins.q_nb[open_])
+
+
+class _BrokenIns(InsWind):
+    def run(self, flight, *, initial=None):  # type: ignore[no-untyped-def]
+        raise ValueError("gnss: nothing to fuse")
+
+
+class _AutoWithBrokenIns(Auto):
+    candidates: ClassVar[dict[str, type[CompiledEstimator]]] = {"ins-wind": _BrokenIns, "mekf": Mekf}
+
+
+def test_an_ins_that_cannot_run_beside_mekf_leaves_mekf(headless: wa.Flight) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = _AutoWithBrokenIns().run(headless)
+        mekf = make_estimator("mekf").run(headless)
+    assert est.meta["auto"] == "mekf" and "the INS beside it: gnss: nothing to fuse" in est.meta["auto_reason"]
+    np.testing.assert_array_equal(est.q_nb, mekf.q_nb)

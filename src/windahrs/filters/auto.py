@@ -330,7 +330,10 @@ class Auto(Estimator):
         (:func:`~windahrs.filters.checks.checked`); or ``before`` when the INS never knows
         it. Returns the estimate, its warnings and what ran."""
         ins_choice = self.choose(streams)
-        ins, _ = _run_quietly(ins_choice.estimator, flight, None)
+        try:
+            ins, _ = _run_quietly(ins_choice.estimator, flight, None)
+        except ValueError as exc:  # (an INS that cannot run this flight: the run without GNSS stands)
+            return before, caught, dataclasses.replace(choice, reason=f"{choice.reason}; the INS beside it: {exc}")
         k = handover_index(ins)
         if k is None:
             why = (f"; the INS beside it never knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
