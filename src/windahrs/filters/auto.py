@@ -22,44 +22,45 @@ A GNSS stream the flight declares unsynchronised (``meta["gnss.timing_sigma_s"]`
 :data:`MAX_GNSS_TIMING_S`) counts as absent.
 
 GNSS velocity without a magnetometer (or with ``mag_mode=off``): [mekf] and [ins-wind] run
-side by side, and the output is [mekf]'s tilt turned to the INS's heading until the first
-sample at which the INS's covariance puts its heading's 1 sigma under
-:data:`HANDOVER_HEADING_SIGMA` (:func:`handover_index`), the INS's from then on
-(:func:`splice`); ``meta["auto_handover_s"]`` says when, and without such a sample
-[mekf] runs alone. After it, [mekf]'s tilt is used again (with the INS's heading) while the
-INS's latest GNSS sample was rejected by its gate (:func:`gate_closed`): GNSS then
-disagrees with the INS's state and no longer corrects it, while gravity still checks
-[mekf]'s tilt at every sample (ArduPilot's EKF3 likewise moves to the lane whose
-innovations pass); ``meta["auto_gate_closed_s"]`` says for how long. On ANSFL path_16 the
-INS claimed its heading 1.6 s after the start while still about 110 deg off, then rejected
-GNSS for 5 s: tilt 9.21 deg with the handover alone, 4.72 with this; the other 15 flights
-unchanged. Why: the INS starts with its heading unknown (init_yaw pi, its default
-then), and until the GNSS accelerations turn it, GNSS velocity fused under a heading wrong
-by tens of degrees tilts it; once it knows its heading it is the better of the two. On the
-16 ANSFL flights (docs/RESULTS.md section 34) median tilt 3.965 deg against [mekf]'s 4.442
-and [ins-wind]'s 5.299 (the handover 0.6-2.7 s after the start; even / odd flights 4.17 /
-3.82 against [mekf]'s 4.34 / 4.85; nothing tuned: the threshold is PX4's); the total after
-one constant heading offset rises from 5.76 to 17.0 deg: the INS's heading is true north
-and wrong for its first seconds, [mekf]'s relative and steady. PX4's EKF2 fuses GNSS only
-once its yaw is aligned (by the magnetometer, or in flight by its GSF yaw estimator); that
-estimator ahead of the INS's start was tried and measured worse (section 34: the INS waits
-6-7 s for it, and its attitude meanwhile is poorer than [mekf]'s). Until stop 28 GNSS
-counted as absent on such a flight, measured then on the ANSFL quadrotor with its GNSS moved
-onto the IMU's clock by ``--align``, median tilt on the even / odd flights: [ins-wind] 5.43
-/ 4.84 deg, [mekf] 4.69 / 6.40 when that was chosen, better on one half and worse on the other
-(docs/RESULTS.md, sections 15 and 16; 15.8 / 12.1 with the heading's spread at init_att's
-10 deg); at stop 22, [ins-wind] 5.43 / 4.84 (all 16: 5.30), [mekf] 4.46 / 6.20 (all 16:
-4.54; docs/RESULTS.md section 23).
+side by side. The INS starts with its heading unknown (init_yaw pi, its default then), and
+until the GNSS accelerations turn it, GNSS velocity fused under a heading wrong by tens of
+degrees tilts it; once it knows its heading it is the better of the two. So the output is
+[mekf]'s tilt turned to the INS's heading until the first sample at which the INS's
+covariance puts its heading's 1 sigma under :data:`HANDOVER_HEADING_SIGMA`
+(:func:`handover_index`), the INS's from then on (:func:`splice`);
+``meta["auto_handover_s"]`` says when, and without such a sample [mekf] runs alone. After
+the handover, [mekf]'s tilt stands in again (with the INS's heading) while the INS's latest
+GNSS sample was rejected by its gate (:func:`gate_closed`): GNSS then disagrees with the
+INS, which nothing else checks, while gravity checks [mekf]'s tilt at every sample
+(ArduPilot's EKF3 likewise moves to the lane whose innovations pass);
+``meta["auto_gate_closed_s"]`` says for how long.
+
+Measured on the 16 ANSFL flights (docs/RESULTS.md section 34; GNSS moved onto the IMU's
+clock by ``--align``): median tilt 3.965 deg against [mekf]'s 4.442 and [ins-wind]'s 5.299,
+the handover 0.6-2.7 s after the start; even / odd flights 4.17 / 3.82 against [mekf]'s
+4.34 / 4.85; nothing tuned (the threshold is PX4's). On path_16 the INS claimed its heading
+1.6 s after the start while still about 110 deg off, then rejected GNSS for 5 s: tilt 9.21
+deg with the handover alone, 4.72 with the gate rule, the other 15 flights unchanged by it.
+The total after one constant heading offset rises from 5.76 to 17.0 deg: the INS's heading
+is true north and wrong for its first seconds, [mekf]'s relative and steady. PX4's EKF2
+fuses GNSS only once its yaw is aligned (by the magnetometer, or in flight by its GSF yaw
+estimator); that estimator ahead of the INS's start was tried and measured worse (section
+34: the INS waits 6-7 s for it, and its attitude meanwhile is poorer than [mekf]'s). Until
+stop 28 GNSS counted as absent on such a flight, measured then, median tilt on the even /
+odd flights: [ins-wind] 5.43 / 4.84 deg, [mekf] 4.69 / 6.40, better on one half and worse
+on the other (docs/RESULTS.md, sections 15 and 16; 15.8 / 12.1 with the heading's spread at
+init_att's 10 deg); at stop 22, [ins-wind] 5.43 / 4.84 (all 16: 5.30), [mekf] 4.46 / 6.20
+(all 16: 4.54; docs/RESULTS.md section 23).
 
 The smoother (``auto-smooth``, ``--smooth``) runs the INS's smoother on such a flight: its
 backward pass carries the heading the INS converged to back to the start, which undoes what
-the causal INS gets wrong before it converges. Measured on the same 16 flights (docs/RESULTS.md
-section 34), median tilt / total: [ins-wind]'s smoother 2.737 / 2.940, [mekf]'s 3.376 /
-5.046, vqf-offline 3.542 / 4.929; on the even / odd flights, tilt 3.38 / 2.35 against
-[mekf]'s 3.84 / 3.09 (no parameter chosen: the rule is the only change).
+the causal INS gets wrong before it converges. Measured on the same 16 flights
+(docs/RESULTS.md section 34), median tilt / total: [ins-wind]'s smoother 2.737 / 2.940,
+[mekf]'s 3.376 / 5.046, vqf-offline 3.542 / 4.929; on the even / odd flights, tilt 3.38 /
+2.35 against [mekf]'s 3.84 / 3.09 (no parameter chosen: the rule is the only change).
 
-After the run, an INS that fails the tilt check is replaced by the run without GNSS when that one fails
-it for less time (see :meth:`Auto.run`).
+After the run, an INS that fails the tilt check is replaced by the run without GNSS when
+that one fails it for less time (see :meth:`Auto.run`).
 
 Why [mekf] can compensate with air data and no GNSS: the airspeed compensation (SPEC 3.2.2)
 subtracts ``(w - b_g) x V_air`` from the specific force, the centripetal acceleration of a
@@ -350,7 +351,7 @@ class Auto(Estimator):
         dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
                   f"{t_h:.2f} s, when the INS knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
-                  "(1 sigma), then the INS's but while its GNSS gate is closed")
+                  "(1 sigma), the INS after, but for its tilt while its GNSS gate is closed")
         meta = {"auto_handover_s": t_h, "auto_gate_closed_s": round(float(closed.sum()) * dt, 3)}
         est = dataclasses.replace(est, meta={**est.meta, **meta})
         return est, list(held), dataclasses.replace(ins_choice, reason=reason)
