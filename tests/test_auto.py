@@ -248,12 +248,21 @@ def _heading_deg(q: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
-def test_without_a_magnetometer_mekf_hands_over_to_the_ins_once_it_knows_its_heading(headless: wa.Flight) -> None:
+def _vertical_body(q: np.ndarray) -> np.ndarray:
+    """C_bn e_3 (N, 3) of attitudes q_nb (N, 4), written out (the oracle of the code's)."""
+    w, x, y, z = q.T
+    return np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z], axis=1)
+
+
+def _runs(flight: wa.Flight, *names: str) -> list[Estimate]:
+    """The estimates of ``names`` on ``flight``, their warnings silenced."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        est = make_estimator("auto").run(headless)
-        mekf = make_estimator("mekf").run(headless)
-        ins = make_estimator("ins-wind").run(headless)
+        return [make_estimator(n).run(flight) for n in names]
+
+
+def test_without_a_magnetometer_mekf_hands_over_to_the_ins_once_it_knows_its_heading(headless: wa.Flight) -> None:
+    est, mekf, ins = _runs(headless, "auto", "mekf", "ins-wind")
     k = handover_index(ins)
     assert k is not None and 0 < k < len(ins.t)
     # the INS's own covariance: its heading's 1 sigma first under 15 deg at k
@@ -276,14 +285,10 @@ def test_without_a_magnetometer_mekf_hands_over_to_the_ins_once_it_knows_its_hea
 
 
 def test_the_handover_is_at_the_first_sample_whose_heading_sigma_is_under_15_deg(headless: wa.Flight) -> None:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ins = make_estimator("ins-wind").run(headless)
+    (ins,) = _runs(headless, "ins-wind")
     k = handover_index(ins)
     assert ins.cov is not None and k is not None
-    q = ins.q_nb
-    d = np.stack([2 * (q[:, 1] * q[:, 3] - q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] + q[:, 0] * q[:, 1]),
-                  q[:, 0] ** 2 - q[:, 1] ** 2 - q[:, 2] ** 2 + q[:, 3] ** 2], axis=1)
+    d = _vertical_body(ins.q_nb)
     sd = np.sqrt(np.einsum("ni,nij,nj->n", d, ins.cov[:, :3, :3], d))
     assert sd[k] < HANDOVER_HEADING_SIGMA and not (sd[:k] < HANDOVER_HEADING_SIGMA).any()
     assert handover_index(dataclasses.replace(ins, cov=None)) is None
@@ -293,10 +298,7 @@ def test_the_handover_is_at_the_first_sample_whose_heading_sigma_is_under_15_deg
 def test_the_spliced_covariance_is_mekfs_before_the_handover_with_the_ins_heading_variance(
     headless: wa.Flight,
 ) -> None:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        mekf = make_estimator("mekf").run(headless)
-        ins = make_estimator("ins-wind").run(headless)
+    mekf, ins = _runs(headless, "mekf", "ins-wind")
     k = 200
     take = np.arange(len(ins.t)) < k
     out = splice(mekf, ins, take)
@@ -310,9 +312,7 @@ def test_the_spliced_covariance_is_mekfs_before_the_handover_with_the_ins_headin
     assert not out.cov[:k][:, att + bg][:, :, others].any()
     np.testing.assert_array_equal(out.cov[:k][:, others][:, :, others], ins.cov[:k][:, others][:, :, others])
     # ... its attitude block mekf's but along the vertical, where the INS's heading variance is
-    q = out.q_nb[:k]
-    d = np.stack([2 * (q[:, 1] * q[:, 3] - q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] + q[:, 0] * q[:, 1]),
-                  q[:, 0] ** 2 - q[:, 1] ** 2 - q[:, 2] ** 2 + q[:, 3] ** 2], axis=1)
+    d = _vertical_body(out.q_nb[:k])
     along = lambda c: np.einsum("ni,nij,nj->n", d, c[:, :3, :3], d)  # noqa: E731
     np.testing.assert_allclose(along(out.cov[:k]), along(ins.cov[:k]), rtol=1e-9)
     e = np.cross(d, [0.0, 0.0, 1.0]) + np.cross(d, [1.0, 0.0, 0.0])  # a direction off the vertical
@@ -362,11 +362,7 @@ def test_mekf_tilt_stands_in_while_the_ins_gnss_gate_is_closed(headless: wa.Flig
     jump = (g.t > 12.0) & (g.t < 15.0)
     v[jump, 0] += 20.0
     faulty = headless.replace(gnss=dataclasses.replace(g, v_n=v))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        est = make_estimator("auto").run(faulty)
-        mekf = make_estimator("mekf").run(faulty)
-        ins = make_estimator("ins-wind").run(faulty)
+    est, mekf, ins = _runs(faulty, "auto", "mekf", "ins-wind")
     closed = gate_closed(ins)
     k = handover_index(ins)
     assert k is not None and closed.any() and not closed[:k].any()

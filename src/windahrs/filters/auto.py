@@ -120,7 +120,7 @@ from windahrs.filters.checks import checked
 from windahrs.filters.eskf import InsWind, Mekf
 from windahrs.filters.params import EskfParams, changes_from_mapping, read_param_file
 from windahrs.flight import Flight, Site
-from windahrs.rotation import quat_mul
+from windahrs.rotation import euler_from_quat, quat_mul, quat_rotate_inv
 
 __all__ = ["Auto", "AutoChoice", "describe_choice", "gate_closed", "handover_index", "splice", "usable_streams"]
 
@@ -341,10 +341,9 @@ class Auto(Estimator):
                    "(1 sigma)")
             return before, caught, dataclasses.replace(choice, reason=choice.reason + why)
         t_h = float(flight.imu.t[k] - flight.imu.t[0])
-        closed = gate_closed(ins)
-        closed[:k] = False
-        take = closed.copy()
-        take[:k] = True
+        early = np.arange(len(ins.t)) < k
+        closed = gate_closed(ins) & ~early
+        take = early | closed
         with warnings.catch_warnings(record=True) as held:
             warnings.simplefilter("always")
             est = checked(splice(before, ins, take), flight)
@@ -380,16 +379,8 @@ def _run_quietly(
     return out, list(caught)
 
 
-def _heading(q: F64) -> F64:
-    """The heading (3-2-1 yaw) of attitudes q_nb (N, 4), rad."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def _vertical_b(q: F64) -> F64:
-    """The nav vertical in the body frame, C_bn e_3 (N, 3), of attitudes q_nb (N, 4)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z], axis=1)
+#: The nav vertical, whose body-frame direction C_bn e_3 carries the heading's variance.
+_DOWN = np.array([0.0, 0.0, 1.0])
 
 
 def handover_index(est: Estimate, sigma: float = HANDOVER_HEADING_SIGMA) -> int | None:
@@ -399,7 +390,7 @@ def handover_index(est: Estimate, sigma: float = HANDOVER_HEADING_SIGMA) -> int 
     if est.cov is None or est.cov.shape[1] < 3 or est.state_labels[:3] != ("att_x", "att_y", "att_z"):
         return None
     rows = est.cov_index if est.cov_index is not None else np.arange(len(est.cov))
-    d = _vertical_b(est.q_nb[rows])
+    d = quat_rotate_inv(est.q_nb[rows], _DOWN)
     var = np.einsum("ni,nij,nj->n", d, est.cov[:, :3, :3], d)
     ok = np.flatnonzero(var < sigma * sigma)  # (NaN rows: not below)
     return int(rows[ok[0]]) if len(ok) else None
@@ -425,7 +416,7 @@ def splice(before: Estimate, after: Estimate, take: NDArray[np.bool_]) -> Estima
     v_b) d d^T``, v the variance along d = C_bn e_3). The alerts are dropped: check the
     result again (:func:`~windahrs.filters.checks.checked`)."""
     idx = np.flatnonzero(take)
-    half = 0.5 * (_heading(after.q_nb[idx]) - _heading(before.q_nb[idx]))
+    half = 0.5 * (euler_from_quat(after.q_nb[idx])[:, 2] - euler_from_quat(before.q_nb[idx])[:, 2])
     turn = np.stack([np.cos(half), np.zeros(len(idx)), np.zeros(len(idx)), np.sin(half)], axis=1)
     q = after.q_nb.copy()
     turned = quat_mul(turn, before.q_nb[idx])
@@ -446,7 +437,7 @@ def splice(before: Estimate, after: Estimate, take: NDArray[np.bool_]) -> Estima
         src = before.cov[np.clip(np.searchsorted(rows_b, rows[r]), 0, len(rows_b) - 1)]
         block = src[:, theirs][:, :, theirs]
         if mine[:3] == [0, 1, 2]:  # the heading's variance: the INS's
-            d = _vertical_b(q[rows[r]])
+            d = quat_rotate_inv(q[rows[r]], _DOWN)
             v_a = np.einsum("ni,nij,nj->n", d, cov[r, :3, :3], d)
             v_b = np.einsum("ni,nij,nj->n", d, block[:, :3, :3], d)
             block[:, :3, :3] += (v_a - v_b)[:, None, None] * d[:, :, None] * d[:, None, :]
