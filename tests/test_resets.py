@@ -323,3 +323,27 @@ def test_the_start_check_on_the_ansfl_flight_whose_first_sample_vibration_turned
     err = attitude_errors(est, scored)
     after = np.degrees(err.tilt[err.t - t0 > 3.5])
     assert np.sqrt(np.mean(after**2)) < 6.0
+
+
+def _heading_off(flight: wa.Flight, deg: float) -> InitialState:
+    ini = InitialState.from_truth(flight)
+    half = np.radians(deg) / 2
+    return InitialState(q_nb=quat_mul(np.array([np.cos(half), 0.0, 0.0, np.sin(half)]), ini.q_nb),
+                        v_n=ini.v_n, wind_n=ini.wind_n)
+
+
+def test_an_ins_whose_heading_is_far_off_is_turned_to_the_field() -> None:
+    """[ins-wind] started 180 deg off in heading on the hovering quadrotor: GNSS velocity
+    does not show the heading, and the gate kept every field sample out for the whole
+    flight (total error 80 deg RMS); now the heading is turned to the field after
+    reset_timeout, logged and warned, with the wind restarted."""
+    flight = wa.simulate("quadrotor", seed=0, wind=8.0, duration=30.0)
+    with pytest.warns(EstimatorWarning, match=r"ins-wind: mag more than 45 deg off the state for 5\.\d s; "
+                      r"at t = 5\.\d+ s heading turned to it by 1\d\d\.\d deg, wind restarted"):
+        est = wa.estimator("ins-wind").run(flight, initial=_heading_off(flight, 180.0))
+    assert len(est.resets["mag"]) == 1
+    err = attitude_errors(est, flight)
+    late = est.t[err.index] - est.t[0]
+    assert np.degrees(err.total[late < 5.0]).min() > 90.0  # lost until the reset...
+    assert np.degrees(err.total[late > 15.0]).max() < 3.0  # ... and right after it
+

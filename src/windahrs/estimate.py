@@ -296,6 +296,8 @@ class Estimate:
                     "gnss": "rejected",
                     "accel": "off the state (by more than 45 deg, or 25 deg at gravity's length)",
                 }.get(sensor, "more than 45 deg off the state")
+                if sensor == "mag" and self.v_n is not None and self.wind_n is not None:  # an INS's (aid.mag)
+                    what += ", wind restarted from the next air sample"
                 out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "

@@ -43,6 +43,8 @@ from windahrs.core.layout import (
     S_HEADLESS,
     S_MAGN,
     S_MBAR,
+    S_NHRESET,
+    S_WPEND,
     W_H,
     W_NU,
     W_R,
@@ -68,7 +70,7 @@ from windahrs.core.quat import (
     _quat_from_euler,
     _wrap_pi,
 )
-from windahrs.core.reset import accepted_at, log_reset, set_attitude_cov, timed_out
+from windahrs.core.reset import accepted_at, log_reset, reopen, set_attitude_cov, timed_out
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = (
@@ -86,6 +88,12 @@ PARAMS = (
 #: that the norm and dip checks let through bends the field by far less (45 deg, as the
 #: gravity aid source's tilt, :data:`windahrs.aid.gravity.LOST_COS`).
 LOST_HEADING = math.radians(45.0)
+#: How many times an INS turns its heading to the magnetometer in one run (below,
+#: :func:`heading_reset`): PX4 EKF2's in-flight budget of magnetometer resets when its mag
+#: fusion has failed for reset_timeout_max (``_nb_mag_3d_reset_available = 2``, mag_control.cpp),
+#: after which a field that still disagrees is only gated: a magnetometer that is itself
+#: wrong cannot turn a heading GNSS keeps right more than twice.
+INS_HEADING_RESETS = 2
 
 #: ... and of its hard-iron states (error-state filters only).
 BIAS_PARAMS = ("init_mag_bias", "mag_bias_noise")
@@ -278,15 +286,27 @@ def _mean_bias_rows(cfg, prm, x, flags, work, sup, m, nsup):
 def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
     """The heading's reset clock at a field sample m (body) against the reference r: a
     heading within LOST_HEADING of the field's restarts it (accepted by the gate or not);
-    one further off for reset_timeout is turned to the field's (not in the INS: its
-    velocity and wind are tied to the heading; turning it alone, on the ALFA flight, took
-    its tilt from 8 to 35 deg). Returns whether it reset (the sample is then not fused)."""
+    one further off for reset_timeout (a field that passes the disturbance checks, which
+    restart the clock too) is turned to the field's. In an INS at most INS_HEADING_RESETS
+    times, and the states tied to the heading follow (:func:`_restart_heading_tied`): its GNSS
+    velocity keeps whatever tilt an update makes consistent, but a heading held 45 deg off
+    by its own confident covariance is never corrected by a field its gate rejects
+    (simulated quadrotor in 8 m/s wind started 90 or 180 deg off in heading: 12 to 159 deg
+    RMS for the whole flight before this reset, docs/RESULTS.md section 35). Returns whether
+    it reset (the sample is then not fused)."""
     sensor = np.int64(INN_MAG)
     d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
     if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
         accepted_at(x, sensor, t)
-    elif timed_out(prm, x, sensor, t) and cfg["kind"] != KIND_INS:
+    elif timed_out(prm, x, sensor, t):
+        if cfg["kind"] != KIND_INS:
+            _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
+            return True
+        if flags[S_NHRESET] >= INS_HEADING_RESETS:
+            return False
+        flags[S_NHRESET] += 1
         _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
+        _restart_heading_tied(cfg, prm, flags, P)
         return True
     return False
 
@@ -313,3 +333,18 @@ def _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d):
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
     set_attitude_cov(cfg, prm, x, P, work)
     log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_MAG), t, abs(d))
+
+
+@njit(**_JIT_CORE)
+def _restart_heading_tied(cfg, prm, flags, P):
+    """After an INS's heading was turned to the field: the wind, fitted to the air data
+    through the wrong heading, restarts from the next air sample as at initialisation
+    (turning the heading alone left the air data's innovations to tilt the attitude: on the
+    ALFA flight, 8 to 35 deg), and the hard iron's spread is reopened (PX4's resetMagStates
+    resets the body field with the heading). The velocity stays: GNSS measures it, whatever
+    the heading."""
+    if cfg["i_w"] >= 0:
+        reopen(cfg, P, cfg["i_w"], prm["init_wind_var"], prm["init_wind_vertical_var"])
+        flags[S_WPEND] = 1
+    if cfg["i_bm"] >= 0:
+        reopen(cfg, P, cfg["i_bm"], prm["init_mag_bias_var"], prm["init_mag_bias_var"])

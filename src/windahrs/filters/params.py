@@ -258,8 +258,8 @@ class EskfParams:
     flights, where a start that far off is caught by the reset below. reset_timeout s: when
     the accelerometer's gravity direction ([mekf], [mekf-air], [ekf7], [ekf10]) has been more
     than 45 deg from the state's for this long, or the magnetometer's heading more than
-    45 deg from it (the same filters; not [ins-wind], whose velocity and wind are tied to
-    the heading), the filter has lost it: the
+    45 deg from it (the same filters, and [ins-wind] twice per run at most, its wind then
+    restarted: :func:`windahrs.aid.mag.heading_reset`), the filter has lost it: the
     attitude is levelled to the specific force (and the gyro bias reset), or turned about
     the vertical onto the field's heading, its spread reopened, logged in
     ``Estimate.resets`` and warned about. A gate that trusts a wrong state must not lock the
@@ -661,7 +661,9 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
     are correlated from sample to sample), adds no rate-proportional process noise
     (gyro_scale_noise = 0), a gyro-bias walk alike about every axis
     (gyro_bias_noise_vertical = 0) and has no magnetic disturbance checks (mag_norm_gate =
-    mag_dip_gate = 0, mag_3d_needs_site off) and takes the INS input's density as given, not
+    mag_dip_gate = 0, mag_3d_needs_site off; the field's innovation gate at least 5 sigma, as
+    the other sensors': [ins-wind]'s 3 is for slowly turning disturbances, and on a consistent
+    filter it rejects about 0.8 % of good 3-axis samples) and takes the INS input's density as given, not
     measured (accel_noise_measured off: the measure also holds the motion's own sample-to-sample
     changes). heading_model is kept (it matters only with mag_mode "heading")."""
     b = base or EskfParams()
@@ -673,6 +675,7 @@ def matched_to(suite: Any, base: EskfParams | None = None) -> EskfParams:
         "mag_norm_gate": 0.0,
         "mag_dip_gate": 0.0,
         "mag_3d_needs_site": False,
+        "gate_mag": max(b.gate_mag, 5.0),
         "gyro_noise": max(suite.gyro.noise_density, 1e-12),
         "gyro_bias_noise": suite.gyro.bias_rw,
         "gyro_bias_noise_vertical": 0.0,  # (the simulated bias walks alike about every axis)
