@@ -6,7 +6,8 @@ folder and on the simulated vehicles: is it ever worse than the best of them by 
 DIR defaults to ``$WINDAHRS_DATA`` or ``../shared/data``. The candidates are the estimators
 ``auto`` can run (``windahrs.filters.auto``): ``mekf``, ``mekf-air`` and ``ins-wind``; each is
 scored where it runs. Score: the tilt RMSE (deg) against the recording's reference, aligned
-(mount and clock) once on ``vqf``'s estimate as ``compare --align`` does, from sample 50; on
+(mount and clock) once on ``vqf``'s estimate as ``compare --align`` does (a GNSS stamped on the
+reference's clock, ANSFL's, moved onto the IMU's by the same fit), from sample 50; on
 simulated flights the tilt RMSE against the truth, RMS over ``--seeds`` seeds, for the fixed
 wing and the quadrotor in calm air and 8 m/s wind. Tilt, because several references here have
 no heading datum. Prints one line per case with ``auto``'s score, the best candidate's and

@@ -5,8 +5,9 @@ without saying so.
     python benchmarks/silent.py [DIR] [--filters auto,mekf,...] [--out silent.json]
 
 DIR defaults to ``$WINDAHRS_DATA`` or ``../shared/data``. Each recording's reference is
-aligned (mount and clock) on ``vqf``'s estimate, as ``compare --align`` does (the reference
-as is when the alignment fails). For each estimator that can run on it: the median tilt error
+aligned (mount and clock) on ``vqf``'s estimate, as ``compare --align`` does, a GNSS stamped on
+the reference's clock (ANSFL's) moved onto the IMU's by the same fit (the reference and the
+GNSS as they are when the alignment fails). For each estimator that can run on it: the median tilt error
 over the last 5 % of the scored samples, whether it emitted an EstimatorWarning (resets,
 tilt alerts, low acceptance), and ``silent`` when it ends beyond 10 deg without one. Prints one
 line per recording (``filter=final_deg`` with ``w`` for warned and ``!`` for silent) and the

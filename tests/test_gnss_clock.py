@@ -181,3 +181,19 @@ def test_init_yaw_spreads_the_attitude_about_the_nav_vertical(sim: Flight, spec:
     assert np.trace(P_w[0]) - 1.0 == pytest.approx(np.trace(P_p[0]) - plain_yaw**2, abs=1e-5)
     with pytest.raises(ValueError, match="init_yaw"):
         make_estimator("ins-wind:init_yaw=-1")
+
+
+def test_the_benchmarks_real_data_loop_runs_on_the_moved_gnss(late_dir: Path) -> None:
+    """aligned_recordings (benchmarks/auto_check.py, silent.py) gives the flight the filters
+    run on as bench-data --align has it: the GNSS moved onto the IMU's clock."""
+    pytest.importorskip("vqf", reason="the alignment is fitted on vqf (pip install 'windahrs[baselines]')")
+    from windahrs.experiments.benchdata import aligned_recordings
+
+    logged = read_ansfl(late_dir)
+    ((path, run, scored),) = list(aligned_recordings(late_dir.parent))
+    assert path == late_dir
+    assert run.gnss is not None and logged.gnss is not None
+    assert run.gnss.t[0] == pytest.approx(logged.gnss.t[0] - LATE_S, abs=0.02)
+    assert run.meta["gnss.timing_sigma_s"] < logged.meta["gnss.timing_sigma_s"]
+    assert scored.reference is not None and logged.reference is not None
+    assert scored.reference.t[0] == pytest.approx(logged.reference.t[0] - LATE_S, abs=0.02)

@@ -412,9 +412,12 @@ def aligned_recordings(
     directory: str | os.PathLike[str], align_on: str = "vqf"
 ) -> Iterator[tuple[Path, Flight, Flight]]:
     """Each recording under ``directory`` (:func:`discover_flights`) that has a reference or
-    truth: its path, the flight, and the flight to score against, its reference aligned
-    (mount and clock) on ``align_on``'s estimate as ``compare --align`` does, or as logged
-    when the fit fails (the benchmarks' real-data loop)."""
+    truth: its path, the flight to run estimators on, and the flight to score against, as
+    ``compare --align`` and ``bench-data --align`` have them: the reference aligned (mount
+    and clock) on ``align_on``'s estimate, and a GNSS stream the recording declares on the
+    reference's clock moved onto the IMU's by the same fit
+    (:meth:`~windahrs.experiments.compare.AlignmentOutcome.run_flight`; ANSFL's); both as
+    logged when the fit fails (the benchmarks' real-data loop)."""
     from windahrs.io import read_flight
 
     for path in discover_flights(directory).flights:
@@ -422,10 +425,11 @@ def aligned_recordings(
         if flight.reference is None and flight.truth is None:
             continue
         try:
-            scored = align_reference(flight, (align_on, make_estimator(align_on).run(flight))).apply(flight)
+            outcome = align_reference(flight, (align_on, make_estimator(align_on).run(flight)))
         except ValueError:
-            scored = flight
-        yield path, flight, scored
+            yield path, flight, flight
+            continue
+        yield path, outcome.run_flight(flight), outcome.apply(flight)
 
 
 def trial_names(paths: Sequence[str | os.PathLike[str]]) -> list[str]:
