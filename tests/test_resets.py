@@ -350,3 +350,24 @@ def test_an_ins_whose_heading_is_far_off_is_turned_to_the_field() -> None:
     assert np.degrees(err.total[late < 5.0]).min() > 90.0  # lost until the reset...
     assert np.degrees(err.total[late > 15.0]).max() < 3.0  # ... and right after it
 
+
+
+def test_a_compass_mounted_wrong_turns_the_ins_heading_twice_at_most() -> None:
+    """A field turned 90 deg about body z on the fixed wing, whose turns let GNSS show the
+    heading: after each GNSS reset the INS took the wrong field's heading again (4 resets,
+    91 deg total error over the last 20 s); now twice at most (INS_HEADING_RESETS, shared
+    with the magnetometer's own reset), after which GNSS keeps turning it right."""
+    from windahrs.aid.mag import INS_HEADING_RESETS
+
+    flight = wa.simulate("fixedwing", seed=0, wind=8.0, duration=90.0)
+    m = flight.mag.mag_b
+    turned = dataclasses.replace(flight.mag, mag_b=np.column_stack([-m[:, 1], m[:, 0], m[:, 2]]))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        est = wa.estimator("ins-wind").run(dataclasses.replace(flight, mag=turned))
+    assert len(est.resets["gnss"]) > INS_HEADING_RESETS  # the budget was asked for more
+    assert len(est.resets["mag"]) == INS_HEADING_RESETS
+    texts = [str(w.message) for w in caught if "gnss rejected" in str(w.message)]
+    assert sum("heading turned to the next magnetometer sample" in x for x in texts) < len(texts)
+    err = attitude_errors(est, flight)
+    assert np.degrees(np.sqrt(np.mean(err.total[err.t > 70.0] ** 2))) < 15.0

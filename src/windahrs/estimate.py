@@ -263,6 +263,17 @@ class Estimate:
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
 
+    def _heading_retaken_after(self, t: float) -> bool:
+        """Whether the GNSS reset at t s was followed by the heading taken from the field
+        (a magnetometer reset row "out for NaN s" before the next GNSS reset): an INS does
+        so at most twice per run (:data:`windahrs.aid.mag.INS_HEADING_RESETS`)."""
+        mag = self.resets.get("mag")
+        if mag is None or not len(mag):
+            return False
+        later = [r for r in np.asarray(self.resets["gnss"])[:, 0] if r > t]
+        end = min(later) if later else np.inf
+        return bool(np.any((mag[:, 0] >= t) & (mag[:, 0] < end) & ~np.isfinite(mag[:, 2])))
+
     def warnings(self, *, repairs: bool = True) -> list[str]:
         """One line per thing the user must know, naming the estimator, what and when: the
         repairs of its input (``repairs``; left out with ``repairs=False``), each reset (see
@@ -280,7 +291,7 @@ class Estimate:
                     what = f"heading turned to it by {np.degrees(size):.1f} deg"
                 elif sensor == "gnss":
                     what = f"velocity reset to it by {size:.1f} m/s; attitude levelled, biases and wind restarted"
-                    if "mag" in self.innovations:
+                    if self._heading_retaken_after(t):
                         what += ", heading turned to the next magnetometer sample"
                 else:
                     what = f"state reset to it by {size:.3g}"

@@ -88,11 +88,12 @@ PARAMS = (
 #: that the norm and dip checks let through bends the field by far less (45 deg, as the
 #: gravity aid source's tilt, :data:`windahrs.aid.gravity.LOST_COS`).
 LOST_HEADING = math.radians(45.0)
-#: How many times an INS turns its heading to the magnetometer in one run (below,
-#: :func:`heading_reset`): PX4 EKF2's in-flight budget of magnetometer resets when its mag
-#: fusion has failed for reset_timeout_max (``_nb_mag_3d_reset_available = 2``, mag_control.cpp),
-#: after which a field that still disagrees is only gated: a magnetometer that is itself
-#: wrong cannot turn a heading GNSS keeps right more than twice.
+#: How many times an INS turns its heading to the magnetometer in one run, by the reset below
+#: (:func:`heading_reset`) or after a GNSS reset (:mod:`windahrs.aid.gnss_vel`), together:
+#: PX4 EKF2's in-flight budget of magnetometer resets when its mag fusion has failed for
+#: reset_timeout_max (``_nb_mag_3d_reset_available = 2``, mag_control.cpp), after which a
+#: field that still disagrees is only gated: a magnetometer that is itself wrong cannot turn
+#: a heading GNSS keeps right more than twice.
 INS_HEADING_RESETS = 2
 
 #: ... and of its hard-iron states (error-state filters only).
