@@ -28,8 +28,7 @@ reset alone is rejected again 5 s later (measured on the ALFA flight: a reset ev
   the INS on the simulated fixed wing take its wrong heading after each of 4 GNSS resets
   (total error over the last 20 s of 90: 91 and 101 deg, seeds 0 and 1); with the budget the
   later resets keep the heading GNSS has been turning, 9.1 and 6.3 deg (docs/RESULTS.md
-  section 35). PX4 EKF2 likewise stops trusting a magnetometer whose yaw reset did not end
-  the GNSS rejections (``mag_fault``). PX4 EKF2 instead declares the magnetometer faulty after its
+  section 35). PX4 EKF2 instead declares the magnetometer faulty after its
   GNSS-triggered emergency yaw reset (``mag_fault``), which turns the yaw with its GNSS yaw
   estimator, which windahrs does not have; declaring it faulty here (until issue 13) left a
   heading the fault had turned uncorrected for the rest of the flight (one 10 s, 5 m/s GNSS

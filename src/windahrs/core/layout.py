@@ -356,7 +356,7 @@ K_SKIP = 14  # (4,) NaN samples skipped: imu, mag, gnss, air
 S_HEADLESS = 18  # the heading awaits the next magnetometer sample (a start without it, a GNSS reset)
 L_CNT = 19  # (N_SENSORS,) log rows used per sensor
 L_FIRST = L_CNT + N_SENSORS  # (N_SENSORS,) order of each sensor's first log row (-1: none)
-S_NHRESET = L_FIRST + N_SENSORS  # heading resets to the magnetometer done by an INS (aid.mag.heading_reset)
+S_NHRESET = L_FIRST + N_SENSORS  # headings an INS took from the field: its resets, after GNSS resets (aid.mag)
 N_FLAGS = S_NHRESET + 1
 
 # work: scratch rows of NMAX columns.
