@@ -351,7 +351,6 @@ def test_an_ins_whose_heading_is_far_off_is_turned_to_the_field() -> None:
     assert np.degrees(err.total[late > 15.0]).max() < 3.0  # ... and right after it
 
 
-
 def test_a_compass_mounted_wrong_turns_the_ins_heading_twice_at_most() -> None:
     """A field turned 90 deg about body z on the fixed wing, whose turns let GNSS show the
     heading: after each GNSS reset the INS took the wrong field's heading again (4 resets,

@@ -45,7 +45,7 @@ import math
 import numpy as np
 from numba import njit
 
-from windahrs.aid.mag import INS_HEADING_RESETS
+from windahrs.aid.mag import spend_heading_reset
 from windahrs.core.kalman import (
     _fuse,
 )
@@ -58,7 +58,6 @@ from windahrs.core.layout import (
     S_FBAR,
     S_HEADLESS,
     S_INIT,
-    S_NHRESET,
     S_VGNSS,
     S_WPEND,
     W_H,
@@ -189,8 +188,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
         restart(cfg, x, P, X_BA, cfg["i_ba"], prm["init_accel_bias_var"])
     if cfg["i_bm"] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
         restart(cfg, x, P, X_BM, cfg["i_bm"], prm["init_mag_bias_var"])
-    if flags[S_NHRESET] < INS_HEADING_RESETS:  # the heading from the next field sample (aid.mag.fuse_mag)
-        flags[S_NHRESET] += 1
+    if spend_heading_reset(flags):  # the heading from the next field sample (aid.mag.fuse_mag)
         flags[S_HEADLESS] = 1
     if cfg["i_w"] >= 0:
         reopen(cfg, P, cfg["i_w"], prm["init_wind_var"], prm["init_wind_vertical_var"])

@@ -300,16 +300,24 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
     if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
         accepted_at(x, sensor, t)
     elif timed_out(prm, x, sensor, t):
-        if cfg["kind"] != KIND_INS:
-            _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
-            return True
-        if flags[S_NHRESET] >= INS_HEADING_RESETS:
+        ins = cfg["kind"] == KIND_INS
+        if ins and not spend_heading_reset(flags):
             return False
-        flags[S_NHRESET] += 1
         _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
-        _restart_heading_tied(cfg, prm, flags, P)
+        if ins:
+            _restart_heading_tied(cfg, prm, flags, P)
         return True
     return False
+
+
+@njit(inline="always", **_JIT_CORE)
+def spend_heading_reset(flags):
+    """Whether the INS may still take its heading from the field (INS_HEADING_RESETS per
+    run, here and after a GNSS reset, aid.gnss_vel); counts the one it takes."""
+    if flags[S_NHRESET] >= INS_HEADING_RESETS:
+        return False
+    flags[S_NHRESET] += 1
+    return True
 
 
 @njit(inline="always", **_JIT_CORE)
