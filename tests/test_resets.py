@@ -353,9 +353,10 @@ def test_an_ins_whose_heading_is_far_off_is_turned_to_the_field() -> None:
 
 def test_a_compass_mounted_wrong_turns_the_ins_heading_twice_at_most() -> None:
     """A field turned 90 deg about body z on the fixed wing, whose turns let GNSS show the
-    heading: after each GNSS reset the INS took the wrong field's heading again (4 resets,
-    91 deg total error over the last 20 s); now twice at most (INS_HEADING_RESETS, shared
-    with the magnetometer's own reset), after which GNSS keeps turning it right."""
+    heading: with the INS's heading reset and no budget it took the wrong field's heading
+    after each GNSS reset (4 resets, 91 deg total error over the last 20 s); now twice at
+    most (INS_HEADING_RESETS, shared with the magnetometer's own reset), after which GNSS
+    keeps turning it right (benchmarks/wrong_compass.py)."""
     from windahrs.aid.mag import INS_HEADING_RESETS
 
     flight = wa.simulate("fixedwing", seed=0, wind=8.0, duration=90.0)

@@ -24,10 +24,11 @@ reset alone is rejected again 5 s later (measured on the ALFA flight: a reset ev
 * the heading turns to the next magnetometer sample that passes its disturbance checks
   (as at a start without it, :mod:`windahrs.aid.mag`): the heading the lost state drifted to
   is no better than its tilt. This and the magnetometer's own heading reset share one budget,
-  :data:`~windahrs.aid.mag.INS_HEADING_RESETS` (2) per run: a compass mounted 90 deg off made
-  the INS on the simulated fixed wing take its wrong heading after each of 4 GNSS resets
-  (total error over the last 20 s of 90: 91 and 101 deg, seeds 0 and 1); with the budget the
-  later resets keep the heading GNSS has been turning, 9.1 and 6.3 deg (docs/RESULTS.md
+  :data:`~windahrs.aid.mag.INS_HEADING_RESETS` (2) per run: with the heading reset and no
+  budget, a compass mounted 90 deg off made the INS on the simulated fixed wing take its
+  wrong heading after each of 4 GNSS resets (total error over the last 20 s of 90: 91 and
+  101 deg, seeds 0 and 1); with the budget 9.1 and 6.3 deg, still worse than without the
+  INS's heading reset, 1.3 and 1.4 (``python benchmarks/wrong_compass.py``; docs/RESULTS.md
   section 35). PX4 EKF2 instead declares the magnetometer faulty after its
   GNSS-triggered emergency yaw reset (``mag_fault``), which turns the yaw with its GNSS yaw
   estimator, which windahrs does not have; declaring it faulty here (until issue 13) left a
