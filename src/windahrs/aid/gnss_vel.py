@@ -27,9 +27,10 @@ reset alone is rejected again 5 s later (measured on the ALFA flight: a reset ev
   :data:`~windahrs.aid.mag.INS_HEADING_RESETS` (2) per run: with the heading reset and no
   budget, a compass mounted 90 deg off made the INS on the simulated fixed wing take its
   wrong heading after each of 4 GNSS resets (total error over the last 20 s of 90: 91 and
-  101 deg, seeds 0 and 1); with the budget 9.1 and 6.3 deg, still worse than without the
-  INS's heading reset, 1.3 and 1.4 (``python benchmarks/wrong_compass.py``; docs/RESULTS.md
-  section 35). PX4 EKF2 instead declares the magnetometer faulty after its
+  101 deg, seeds 0 and 1); with the budget 9.1 and 6.3 deg, worse than without the INS's
+  heading reset, 1.3 and 1.4. Neither turns a heading GNSS has seen in manoeuvres
+  (:func:`watch_heading`): 1.4 and 1.7 deg (``python benchmarks/wrong_compass.py``;
+  docs/RESULTS.md sections 35 and 36). PX4 EKF2 instead declares the magnetometer faulty after its
   GNSS-triggered emergency yaw reset (``mag_fault``), which turns the yaw with its GNSS yaw
   estimator, which windahrs does not have; declaring it faulty here (until issue 13) left a
   heading the fault had turned uncorrected for the rest of the flight (one 10 s, 5 m/s GNSS
@@ -69,6 +70,9 @@ from windahrs.core.layout import (
     X_BA,
     X_BM,
     X_FBAR,
+    X_HLAST,
+    X_HOBS,
+    X_HSEEN,
     X_LGAIN,
     X_TGNSS,
     X_V,
@@ -96,6 +100,12 @@ PARAMS = ("gnss_sigma", "gnss_timing_sigma", "gate_gnss", "reset_timeout")
 #: both alike, while one sample of a multirotor's accelerometer is off by several m/s^2
 #: (VQF's tau_acc, 3 s, the same low-pass of the specific force; also [mekf]'s accel_lowpass).
 LEVEL_TAU = 3.0
+
+#: The mean horizontal GNSS acceleration, m/s^2, below which GNSS velocity does not show the
+#: heading (:func:`watch_heading`): PX4 EKF2's EKF2_MAG_ACCLIM (0.5), with its hysteresis, twice
+#: that to start seeing it (``checkYawAngleObservability``). A heading error psi makes the INS's
+#: velocity drift by a sin(psi) per second only under a horizontal acceleration a.
+HEADING_ACC_LIMIT = 0.5
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -143,6 +153,33 @@ def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row)
         elif _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_gnss2"]):
             accepted_at(x, sensor, t)
+            watch_heading(x, t, True)
+        else:
+            watch_heading(x, t, False)
+
+
+@njit(inline="always", **_JIT_CORE)
+def watch_heading(x, t, accepted):
+    """Whether GNSS has seen the INS's heading: the seconds (x[X_HSEEN]) of GNSS samples the gate
+    accepted while the mean horizontal GNSS acceleration (x[X_AINS], over LEVEL_TAU) was beyond
+    HEADING_ACC_LIMIT (x[X_HOBS], with PX4's hysteresis), i.e. while a wrong heading would have
+    shown as a velocity error growing at a sin(psi) per second; a sample rejected then starts
+    the count again (as does a turn of the heading, aid.mag, and a GNSS reset). A heading GNSS
+    has seen for reset_timeout is not turned to a field that disagrees with it
+    (:func:`windahrs.aid.mag.heading_reset`): PX4 EKF2 likewise stops fusing a magnetometer whose
+    heading is inconsistent with GNSS while the yaw is observable (``mag_heading_consistent``)."""
+    a2 = x[X_AINS] ** 2 + x[X_AINS + 1] ** 2
+    lim = HEADING_ACC_LIMIT if x[X_HOBS] == 1.0 else 2.0 * HEADING_ACC_LIMIT
+    obs = a2 > lim * lim
+    x[X_HOBS] = 1.0 if obs else 0.0
+    if obs:
+        if accepted:
+            dt = t - x[X_HLAST]
+            if 0.0 < dt <= LEVEL_TAU:  # (a gap longer than the mean's time: not counted)
+                x[X_HSEEN] += dt
+        else:
+            x[X_HSEEN] = 0.0
+    x[X_HLAST] = t
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -189,6 +226,7 @@ def reset_to_gnss(cfg, prm, x, flags, P, work, inn, acc, t, row):
         restart(cfg, x, P, X_BA, cfg["i_ba"], prm["init_accel_bias_var"])
     if cfg["i_bm"] >= 0:  # a hard iron learnt under the lost attitude would turn the next heading
         restart(cfg, x, P, X_BM, cfg["i_bm"], prm["init_mag_bias_var"])
+    x[X_HSEEN] = 0.0  # (the heading GNSS had seen is lost with the state)
     if spend_heading_reset(flags):  # the heading from the next field sample (aid.mag.fuse_mag)
         flags[S_HEADLESS] = 1
     if cfg["i_w"] >= 0:

@@ -49,6 +49,7 @@ from windahrs.core.layout import (
     W_NU,
     W_R,
     X_BM,
+    X_HSEEN,
     X_JMAG,
     X_MAGN,
     X_MBAR,
@@ -301,13 +302,21 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
         accepted_at(x, sensor, t)
     elif timed_out(prm, x, sensor, t):
         ins = cfg["kind"] == KIND_INS
-        if ins and not spend_heading_reset(flags):
+        if ins and (heading_seen_by_gnss(prm, x) or not spend_heading_reset(flags)):
             return False
         _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
         if ins:
             _restart_heading_tied(cfg, prm, flags, P)
         return True
     return False
+
+
+@njit(inline="always", **_JIT_CORE)
+def heading_seen_by_gnss(prm, x):
+    """Whether GNSS has seen the INS's heading for reset_timeout since it was last turned
+    (:func:`windahrs.aid.gnss_vel.watch_heading`): then a field that disagrees is the field's
+    fault (a compass mounted or calibrated wrong), and the heading is not turned to it."""
+    return x[X_HSEEN] >= prm["reset_timeout"]
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -338,6 +347,7 @@ def _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d):
     the nav vertical by d, reopen the attitude's spread (PX4 EKF2 resets its yaw to the
     magnetometer likewise)."""
     h = 0.5 * d
+    x[X_HSEEN] = 0.0  # (GNSS has not seen this heading yet)
     q = _qmul(math.cos(h), 0.0, 0.0, math.sin(h), x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
     set_attitude_cov(cfg, prm, x, P, work)

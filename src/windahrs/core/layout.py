@@ -335,7 +335,14 @@ X_NMFUSE = X_AVAR + 35  # the same for the magnetometer's mean (aid.mag)
 X_TMFUSE = X_AVAR + 36
 X_OFFSTART = X_AVAR + 37  # 1: the start's sample was off the gravity gate (aid.gravity, gated_start), else 0
 X_KEEPBG = X_AVAR + 38  # for how long after the start, s, gravity updates keep the gyro bias (gated_start)
-N_X = X_AVAR + 39
+#: The INS's heading seen by GNSS (aid.gnss_vel.watch_heading): 1 while the mean GNSS acceleration
+#: makes the heading observable (with hysteresis), else 0; the seconds of observable motion whose
+#: GNSS samples the gate accepted since the heading was last turned or a sample was rejected;
+#: the time of the last GNSS sample counted.
+X_HOBS = X_AVAR + 39
+X_HSEEN = X_AVAR + 40
+X_HLAST = X_AVAR + 41
+N_X = X_AVAR + 42
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
