@@ -18,6 +18,10 @@ Machines differ and this one is shared and noisy, so every figure is also given 
 to vqf's C++ core alone (``updateBatch`` on this flight's gyro, accelerometer and
 magnetometer, contiguous float64, no adapter; "vqf core (calibration)"), timed first in the
 same run, and checked against the targets of issue "One estimator core" (:data:`TARGETS`).
+Each estimator's ratio is taken against vqf's core timed again right before each of its
+timed runs (the best of those against its best): on this shared machine the speed of the
+moment drifts by up to 2x over the minutes a table takes (stop 31: `ins-wind` read 2.10-3.90
+against the one calibration at the start, four runs of the same code and its parent).
 """
 
 from __future__ import annotations
@@ -39,18 +43,25 @@ TARGETS = {
 }  # fmt: skip
 
 
-def timed_runs(run: Callable[[], Any], repeat: int, budget: float) -> tuple[float, list[float]]:
-    """Warm-up time and the timed runs (s)."""
+def timed_runs(
+    run: Callable[[], Any], repeat: int, budget: float, ref: Callable[[], Any] | None = None
+) -> tuple[float, list[float], list[float]]:
+    """Warm-up time, the timed runs (s) and, with ``ref``, the reference's runs (s), one
+    before each of the timed runs: the reference shares the machine's state of the moment."""
     t0 = time.perf_counter()
     run()
     first = time.perf_counter() - t0
-    spent, times = first, []
+    spent, times, ref_times = first, [], []
     while len(times) < repeat and (not times or spent < budget):
+        if ref is not None:
+            t0 = time.perf_counter()
+            ref()
+            ref_times.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         run()
         times.append(time.perf_counter() - t0)
         spent += times[-1]
-    return first, times
+    return first, times, ref_times
 
 
 def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
@@ -81,13 +92,12 @@ def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
     return out[True], out[False]
 
 
-def vqf_core_us(flight: Any, repeat: int, results: list[dict[str, Any]]) -> float | None:
-    """Time vqf's updateBatch alone on the flight's IMU and magnetometer (held to the IMU
-    grid), append it to ``results`` and return its us/sample (None without vqf)."""
+def vqf_core(flight: Any) -> Callable[[], None] | None:
+    """vqf's updateBatch alone on the flight's IMU and magnetometer (held to the IMU grid,
+    in microtesla as the vqf adapter feeds it), as a function to time; None without vqf."""
     try:
         from vqf import VQF
     except ImportError:
-        print("vqf core (calibration): skipped, vqf is not installed (pip install 'windahrs[baselines]')")
         return None
     import numpy as np
 
@@ -96,7 +106,6 @@ def vqf_core_us(flight: Any, repeat: int, results: list[dict[str, Any]]) -> floa
     imu = flight.imu
     gyr = np.ascontiguousarray(imu.w_b, dtype=np.float64)
     acc = np.ascontiguousarray(imu.f_b, dtype=np.float64)
-    # the magnetometer held on the IMU grid, in microtesla, as the vqf adapter feeds it
     m = np.ascontiguousarray(held_mag(flight, imu.t)[0]) if flight.mag is not None else None
     dt = float(np.median(np.diff(imu.t)))
 
@@ -107,7 +116,18 @@ def vqf_core_us(flight: Any, repeat: int, results: list[dict[str, Any]]) -> floa
         else:
             v.updateBatch(gyr, acc, m)
 
-    _, times = timed_runs(run, max(repeat, 5), 30.0)
+    return run
+
+
+def vqf_core_us(flight: Any, repeat: int, results: list[dict[str, Any]]) -> float | None:
+    """Time vqf's updateBatch alone (:func:`vqf_core`), append it to ``results`` and return its
+    us/sample (None without vqf)."""
+    run = vqf_core(flight)
+    if run is None:
+        print("vqf core (calibration): skipped, vqf is not installed (pip install 'windahrs[baselines]')")
+        return None
+    imu = flight.imu
+    _, times, _ = timed_runs(run, max(repeat, 5), 30.0)
     us = min(times) / len(imu.t) * 1e6
     results.append({"name": "vqf core (calibration)", "us_per_sample": round(us, 4), "ratio_to_vqf_core": 1.0})
     print(f"{'vqf core (calibration)':24s} {us:10.3f} {1.0:8.2f} {len(times):5d} {'':>10s}   "
@@ -142,14 +162,18 @@ def main() -> None:
     results: list[dict[str, Any]] = []
     vqf_us = vqf_core_us(flight, args.repeat, results)
 
+    ref = vqf_core(flight) if vqf_us is not None else None
+
     def measure(name: str, est: Any, note: str = "") -> None:
         try:
-            first, times = timed_runs(lambda: est.run(flight), args.repeat, args.budget)
+            first, times, ref_times = timed_runs(lambda: est.run(flight), args.repeat, args.budget, ref)
         except Exception as exc:  # an estimator that cannot run this flight: say so, go on
             print(f"{name:24s} {'-':>10s} {'':>8s} {'':>5s} {'':>10s}   skipped: {type(exc).__name__}: {exc}")
             return
         us = min(times) / n * 1e6
-        ratio = us / vqf_us if vqf_us else float("nan")
+        # against vqf's core timed just before each run (the best of those): the ratio follows
+        # the machine's speed of the moment, which drifts by up to 2x over a run of the table
+        ratio = min(times) / min(ref_times) if ref_times else float("nan")
         results.append({"name": name, "us_per_sample": round(us, 4), "ratio_to_vqf_core": round(ratio, 3)})
         print(f"{name:24s} {us:10.3f} {ratio:8.2f} {len(times):5d} {first:10.2f}   {note}", flush=True)
 
@@ -170,7 +194,7 @@ def main() -> None:
 
     if vqf_us is not None:
         by_name = {r["name"]: r["ratio_to_vqf_core"] for r in results}
-        print(f"\ntargets (ratio to vqf's core, {vqf_us:.3f} us/sample in this run):")
+        print(f"\ntargets (ratio to vqf's core timed beside each; its calibration {vqf_us:.3f} us/sample):")
         for name, bound in TARGETS.items():
             if name in by_name:
                 verdict = "meets" if by_name[name] <= bound else "MISSES"

@@ -2,11 +2,21 @@
 paper's [paper], [paper-nowind], [ekf]), with its gate and its innovation log.
 
 :func:`_fuse` computes the NIS, gates each component at ``gate`` sigmas (the innovation
-test ratio ``nu_k^2 / (gate^2 S_kk)`` of PX4's EKF2), logs the innovation, and applies the
-Joseph-form update, evaluated expanded as ``P + K G^T + G K^T`` with ``U = P H^T`` and
-``G = K S / 2 - U`` (algebraically ``(I - K H) P (I - K H)^T + K R K^T``, exactly symmetric
-in floating point), then injects the correction into the nominal state. An update with m
-rows (1, 2 or 3) whose Jacobian touches c columns costs O(n c m + n^2 m). Every aid source
+test ratio ``nu_k^2 / (gate^2 S_kk)`` of PX4's EKF2), logs the innovation, updates the
+covariance, then injects the correction into the nominal state. The covariance update:
+
+* the error-state filters' with the Kalman gain itself (:func:`_whitened`):
+  ``P - U^T S^-1 U = P - V^T V`` on the whitened rows ``V = L^-1 U`` (``U = H P``,
+  ``S = L L^T``), three products per entry of P, exactly symmetric in floating point;
+* the Joseph form, evaluated expanded as ``P + K G^T + G K^T`` with ``G = K S / 2 - U^T``
+  (algebraically ``(I - K H) P (I - K H)^T + K R K^T``, exactly symmetric too, six products
+  per entry), for a gain changed after it was computed (the gravity aid's tilt-only and
+  kept-bias gains) and for the quaternion-additive filters ([ekf7], [ekf10], the paper's),
+  whose covariance is singular along q (SPEC 2.3: Joseph form there).
+
+The two agree to rounding (the quaternions within 3.1e-14 rad over 60 s simulated flights,
+docs/RESULTS.md section 37). An update with m rows (1, 2 or 3) whose Jacobian touches c
+columns costs O(n c m + n^2 m). Every aid source
 (windahrs.aid) fills ``nu``, ``H`` on its support columns and ``R`` in the scratch rows and
 calls it; so does the paper's filters' vector update (windahrs.filters.additive), with H
 on the quaternion's four parameters.
@@ -17,6 +27,8 @@ reads it back as Estimate innovations (:func:`read_logs`).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -296,9 +308,13 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             S[k, l] = s + R[k, l]
     if not _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
         return False
-    # K^T = S^-1 H P; Joseph form expanded: P - K U^T - U K^T + K S K^T = P + K G^T + G K^T
-    # with G = K S / 2 - U^T.
-    if m == 3:
+    tilt_only = cfg["tilt_only"] == 1 and sensor == INN_ACCEL
+    keep_bias = cfg["gated_start"] == 1 and sensor == INN_ACCEL and t - x[X_TINIT] < x[X_KEEPBG]
+    if cfg["add_form"] == ADD_NONE and not (tilt_only or keep_bias) and _whitened(P, U, Kt, nu, dx, S, m, n):
+        pass  # the Kalman gain's own update, on the whitened rows
+    # Any other gain (K^T = S^-1 H P, then changed): the Joseph form expanded,
+    # P - K U^T - U K^T + K S K^T = P + K G^T + G K^T with G = K S / 2 - U^T.
+    elif m == 3:
         i00, i01, i02, i10, i11, i12 = Si[0, 0], Si[0, 1], Si[0, 2], Si[1, 0], Si[1, 1], Si[1, 2]
         i20, i21, i22 = Si[2, 0], Si[2, 1], Si[2, 2]
         s00, s01, s02, s10, s11, s12 = S[0, 0], S[0, 1], S[0, 2], S[1, 0], S[1, 1], S[1, 2]
@@ -314,10 +330,9 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
             Gt[0, j] = 0.5 * (s00 * k0 + s10 * k1 + s20 * k2) - u0
             Gt[1, j] = 0.5 * (s01 * k0 + s11 * k1 + s21 * k2) - u1
             Gt[2, j] = 0.5 * (s02 * k0 + s12 * k1 + s22 * k2) - u2
-        if cfg["tilt_only"] == 1 and sensor == INN_ACCEL:
+        if tilt_only:
             _tilt_only(x, Kt, Gt, dx, S, U, nu)
-        if cfg["gated_start"] == 1 and sensor == INN_ACCEL and t - x[X_TINIT] < x[X_KEEPBG]:
-            # a start off the gravity gate: the gyro bias kept (aid.gravity.gate_start)
+        if keep_bias:  # a start off the gravity gate: the gyro bias kept (aid.gravity.gate_start)
             _keep_bias(cfg, Kt, Gt, dx, U)
         for i in range(n):
             a0, b0, a1, b1, a2, b2 = Kt[0, i], Gt[0, i], Kt[1, i], Gt[1, i], Kt[2, i], Gt[2, i]
@@ -395,6 +410,80 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
                 x[X_BA + a] += dx[iba + a]
             if cfg["i_bm"] >= 0:
                 x[X_BM + a] += dx[cfg["i_bm"] + a]
+    return True
+
+
+@njit(inline="always", **_JIT_CORE)
+def _whitened(P, U, V, nu, dx, S, m, n):
+    """The update with the Kalman gain itself, ``P - U^T S^-1 U = P - V^T V`` with the
+    whitened rows ``V = L^-1 U`` (S = L L^T, Cholesky; V in the gain's scratch rows) and the
+    correction ``dx = K nu = V^T L^-1 nu``: three products per entry of P where the Joseph
+    form's expansion takes six, and exactly symmetric as it is (entry (i, j) sums
+    V_ki V_kj, entry (j, i) the same products in the same order). Algebraically the Joseph
+    form's value for this gain. Returns False, P untouched, when a pivot of S is not
+    positive (a covariance gone wrong: the caller's Joseph form then)."""
+    d0 = S[0, 0]
+    if not d0 > 0.0:
+        return False
+    l00 = math.sqrt(d0)
+    r0 = 1.0 / l00
+    z0 = nu[0] * r0
+    if m == 1:
+        for j in range(n):
+            v0 = U[0, j] * r0
+            V[0, j] = v0
+            dx[j] = v0 * z0
+        for i in range(n):
+            a0 = V[0, i]
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = P[i, j] - a0 * V[0, j]
+            else:
+                for j in range(n):
+                    P[i, j] = P[i, j] - a0 * V[0, j]
+        return True
+    l10 = S[1, 0] * r0
+    d1 = S[1, 1] - l10 * l10
+    if not d1 > 0.0:
+        return False
+    r1 = 1.0 / math.sqrt(d1)
+    z1 = (nu[1] - l10 * z0) * r1
+    if m == 2:
+        for j in range(n):
+            v0 = U[0, j] * r0
+            v1 = (U[1, j] - l10 * v0) * r1
+            V[0, j], V[1, j] = v0, v1
+            dx[j] = v0 * z0 + v1 * z1
+        for i in range(n):
+            a0, a1 = V[0, i], V[1, i]
+            if n <= TRIANGLE_N:
+                for j in range(i, n):
+                    P[i, j] = P[j, i] = P[i, j] - (a0 * V[0, j] + a1 * V[1, j])
+            else:
+                for j in range(n):
+                    P[i, j] = P[i, j] - (a0 * V[0, j] + a1 * V[1, j])
+        return True
+    l20 = S[2, 0] * r0
+    l21 = (S[2, 1] - l20 * l10) * r1
+    d2 = S[2, 2] - l20 * l20 - l21 * l21
+    if not d2 > 0.0:
+        return False
+    r2 = 1.0 / math.sqrt(d2)
+    z2 = (nu[2] - l20 * z0 - l21 * z1) * r2
+    for j in range(n):
+        v0 = U[0, j] * r0
+        v1 = (U[1, j] - l10 * v0) * r1
+        v2 = (U[2, j] - l20 * v0 - l21 * v1) * r2
+        V[0, j], V[1, j], V[2, j] = v0, v1, v2
+        dx[j] = v0 * z0 + v1 * z1 + v2 * z2
+    for i in range(n):
+        a0, a1, a2 = V[0, i], V[1, i], V[2, i]
+        if n <= TRIANGLE_N:
+            for j in range(i, n):
+                P[i, j] = P[j, i] = P[i, j] - ((a0 * V[0, j] + a1 * V[1, j]) + a2 * V[2, j])
+        else:
+            for j in range(n):
+                P[i, j] = P[i, j] - ((a0 * V[0, j] + a1 * V[1, j]) + a2 * V[2, j])
     return True
 
 

@@ -495,6 +495,14 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, tas, aoa, beta):
         fuse_sideslip(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra)
 
 
+#: The recorded covariance goes around the caches (non-temporal stores) from this size on: an
+#: [ins-wind] row (18 x 18, 2.6 kB a sample) evicted the filter's own working set, while
+#: [mekf]'s (6 x 6, 288 B: four and a half cache lines) paid for its partly written lines
+#: flushed one by one: recording took 0.23 us a sample that way, about none through the caches
+#: (stop 31, docs/RESULTS.md section 37); 9 x 9 ([mekf-air]) measured the same either way.
+NT_RECORD_DIM = 12
+
+
 @njit(inline="always", **_JIT_CORE)
 def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov):
     """The current state into row k of the outputs: q (N, 4), bias
@@ -517,10 +525,14 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
     # faster code)
     if kc < 0:
         pass
-    elif cfg["add_form"] == 0:  # (around the caches, core.pool.stream_store3: never read back here)
+    elif cfg["add_form"] == 0 and d >= NT_RECORD_DIM:  # (around the caches, core.pool.stream_store3)
         for i in range(d):
             for j in range(d):
                 stream_store3(out_cov, kc, i, j, P[i, j])
+    elif cfg["add_form"] == 0:  # (a small row: through the caches)
+        for i in range(d):
+            for j in range(d):
+                out_cov[kc, i, j] = P[i, j]
     else:
         _record_tangent_cov(cfg, x, P, work, kc, out_cov)
     q0, q1, q2, q3 = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
