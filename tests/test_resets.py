@@ -360,9 +360,10 @@ def test_a_compass_mounted_wrong_is_not_followed_once_gnss_has_seen_the_heading(
     flight = wa.simulate("fixedwing", seed=0, wind=8.0, duration=90.0)
     m = flight.mag.mag_b
     turned = dataclasses.replace(flight.mag, mag_b=np.column_stack([-m[:, 1], m[:, 0], m[:, 2]]))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         est = wa.estimator("ins-wind").run(dataclasses.replace(flight, mag=turned))
+    assert any("a compass mounted or calibrated wrong" in str(w.message) for w in caught)  # the user is told
     err = attitude_errors(est, flight)
     seen = err.t[(err.t > 21.0) & (np.degrees(err.total) < 10.0)][0]  # GNSS has turned it right
     assert (est.resets.get("mag", np.empty((0, 3)))[:, 0] < seen).all()  # never turned back to the field

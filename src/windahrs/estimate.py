@@ -329,8 +329,12 @@ class Estimate:
             n = len(inn.accepted)
             share = inn.accepted_share()
             if n >= 10 and share < LOW_ACCEPTANCE:
+                why = "a disturbed sensor, or a lost state"
+                if sensor == "mag" and "gnss" in self.innovations:  # (an INS: GNSS holds its heading)
+                    why = ("a disturbed sensor, a lost state, or a field off the heading GNSS velocity shows, "
+                           "as from a compass mounted or calibrated wrong")
                 out.append(f"{self.filter}: only {100 * share:.0f} % of {n} {sensor} samples accepted "
-                           "(gated out: a disturbed sensor, or a lost state)")
+                           f"(gated out: {why})")
         return out
 
 
