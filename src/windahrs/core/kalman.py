@@ -239,7 +239,8 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     correction to the quaternion's parameters and normalise (``_normalise_add``).
     Returns whether the update was accepted.
 
-    Every entry of U = H P is summed in a register (the support's columns in their order).
+    Every entry of U = H P sums the support's columns in their order: in a register for up to
+    TRIANGLE_N states, for more (3 rows) along P's whole rows, which the compiler vectorises.
     The covariance update of up to TRIANGLE_N states is evaluated on one triangle and
     mirrored (each entry adds K_ik G_jk + G_ik K_jk, its mirror's sum with the terms
     swapped: what updating both gave, for half the work), of more on whole rows, which the
@@ -274,31 +275,46 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     U, Kt, Gt = work[W_U : W_U + 3], work[W_K : W_K + 3], work[W_G : W_G + 3]
     R, S, Si = work[W_R : W_R + 3], work[W_S : W_S + 3], work[W_SI : W_SI + 3]
     nu, dx = work[W_NU], work[W_DX]
-    # U = H P (P is exactly symmetric, so U^T = P H^T exactly), each entry summed in a register
-    for j in range(n):
-        if m == 3:
-            u0 = u1 = u2 = 0.0
-            for ci in range(nc):
-                c = cols[ci]
-                p = P[c, j]
-                u0 += Hm[0, c] * p
-                u1 += Hm[1, c] * p
-                u2 += Hm[2, c] * p
-            U[0, j], U[1, j], U[2, j] = u0, u1, u2
-        elif m == 2:
-            u0 = u1 = 0.0
-            for ci in range(nc):
-                c = cols[ci]
-                p = P[c, j]
-                u0 += Hm[0, c] * p
-                u1 += Hm[1, c] * p
-            U[0, j], U[1, j] = u0, u1
-        else:
-            u0 = 0.0
-            for ci in range(nc):
-                c = cols[ci]
-                u0 += Hm[0, c] * P[c, j]
-            U[0, j] = u0
+    # U = H P (P is exactly symmetric, so U^T = P H^T exactly); either way each entry sums the
+    # support's columns in their order from 0: the same numbers
+    wide = m == 3 and n > TRIANGLE_N
+    if wide:  # along P's rows on the support (whole rows: vectorised; [ins-wind] 9 % faster)
+        for j in range(n):
+            U[0, j] = U[1, j] = U[2, j] = 0.0
+        for ci in range(nc):
+            c = cols[ci]
+            h0, h1, h2 = Hm[0, c], Hm[1, c], Hm[2, c]
+            for j in range(n):
+                U[0, j] += h0 * P[c, j]
+            for j in range(n):
+                U[1, j] += h1 * P[c, j]
+            for j in range(n):
+                U[2, j] += h2 * P[c, j]
+    else:  # each entry summed in a register (a small covariance: [mekf]'s faster so)
+        for j in range(n):
+            if m == 3:
+                u0 = u1 = u2 = 0.0
+                for ci in range(nc):
+                    c = cols[ci]
+                    p = P[c, j]
+                    u0 += Hm[0, c] * p
+                    u1 += Hm[1, c] * p
+                    u2 += Hm[2, c] * p
+                U[0, j], U[1, j], U[2, j] = u0, u1, u2
+            elif m == 2:
+                u0 = u1 = 0.0
+                for ci in range(nc):
+                    c = cols[ci]
+                    p = P[c, j]
+                    u0 += Hm[0, c] * p
+                    u1 += Hm[1, c] * p
+                U[0, j], U[1, j] = u0, u1
+            else:
+                u0 = 0.0
+                for ci in range(nc):
+                    c = cols[ci]
+                    u0 += Hm[0, c] * P[c, j]
+                U[0, j] = u0
     for k in range(m):
         for l in range(m):
             s = 0.0
