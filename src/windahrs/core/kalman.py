@@ -228,7 +228,8 @@ def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
 
 @njit(**_JIT_CORE)
 def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
-    """The Kalman update of the error-state and additive EKFs: NIS, gate, log, Joseph update, injection.
+    """The Kalman update of the error-state and additive EKFs: NIS, gate, log, covariance
+    update (:func:`_whitened` for the error state's own gain, else the Joseph form), injection.
 
     The measurement: nu = work[W_NU, :m], R = work[W_R:W_R+m, :m] and H, by the form
     cfg["add_form"]: the error state and [ekf7], [ekf10] (ADD_NONE, ADD_ATT) give H =
@@ -242,10 +243,11 @@ def _fuse(cfg, x, flags, P, work, sups, inn, acc, sensor, t, m, nsup, gate2):
     Every entry of U = H P sums the support's columns in their order: in a register for up to
     TRIANGLE_N states, for more (3 rows) along P's whole rows, which the compiler vectorises.
     The covariance update of up to TRIANGLE_N states is evaluated on one triangle and
-    mirrored (each entry adds K_ik G_jk + G_ik K_jk, its mirror's sum with the terms
-    swapped: what updating both gave, for half the work), of more on whole rows, which the
-    compiler vectorises; either way P stays exactly symmetric. Loops run over the n states,
-    not P's zero padding."""
+    mirrored (Joseph: each entry adds K_ik G_jk + G_ik K_jk, its mirror's sum with the terms
+    swapped; whitened: each subtracts the sum of V_ki V_kj, its mirror's the same products:
+    what updating both gave, for half the work), of more on whole rows, which the compiler
+    vectorises; either way P stays exactly symmetric. Loops run over the n states, not P's
+    zero padding."""
     n = cfg["n"]
     H, sup = work[W_H : W_H + 3], sups[0]
     Hm, cols, nc = H, sup, nsup
