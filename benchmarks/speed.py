@@ -65,29 +65,23 @@ def timed_runs(
 
 
 def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
-    """Best time (s) of the error-state core's loop alone, with and without recording."""
+    """Best time (s) of the error-state core's loop alone, with and without recording: the
+    loop of :meth:`Estimator.run` on what its ``prepare`` hands it (the outputs from
+    ``core.pool``, their pages already mapped after the first run, as in ``run``)."""
     import numpy as np
 
     from windahrs.core import kernel as K
-    from windahrs.core.layout import N_SENSORS
     from windahrs.core.smooth import no_smoothing
-    from windahrs.filters.base import merge_events
 
-    has = frozenset(s for s in ("imu", "mag", "gnss", "air") if getattr(flight, s) is not None) & est.uses
-    t_ev, kinds, vals = merge_events(flight, has)
-    caps = np.full(N_SENSORS, len(t_ev), dtype=np.int64)
-    L = K.layout_for(est.kind, est.params, additive=est.additive)
-    N, d = len(flight.imu.t), L.dim
     out = {}
     for rec in (True, False):
         best = np.inf
         for _ in range(repeat + 1):
-            st = K.make_state(est.kind, est.additive, est.params, flight.site, None, has, caps)
-            q, bg, v, w = (np.empty((N, k)) for k in (4, 3, 3, 3))
-            cov = np.empty((N, d, d))
+            r = est.prepare(flight)
             t0 = time.perf_counter()
-            K.run_events(st, t_ev, kinds, vals, q, bg, v, w, cov, rec, no_smoothing())
+            K.run_events(r.st, r.t_ev, r.kinds, r.vals, r.q, r.bg, r.v, r.w, r.cov, rec, no_smoothing())
             best = min(best, time.perf_counter() - t0)
+            del r
         out[rec] = best
     return out[True], out[False]
 
