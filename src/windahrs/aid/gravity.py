@@ -54,6 +54,7 @@ from windahrs.core.layout import (
     COMP_AIRSPEED,
     COMP_GNSS,
     INN_ACCEL,
+    INN_LEVEL,
     S_AGNSS,
     S_FBAR,
     S_VAIR,
@@ -334,3 +335,22 @@ def fuse_gravity(cfg, prm, x, flags, P, work, sup, inn, acc, t, row, dt):
     # while the mean's innovation is a sample's, so the gate opens by k)
     _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_accel2"] * kf)
     per_sample_nis(cfg, flags, inn, sensor, kf)
+
+
+@njit(**_JIT_CORE)
+def fuse_level(cfg, prm, x, flags, P, work, sup, inn, acc, t, fx, fy, fz, var):
+    """The INS at rest (:mod:`windahrs.aid.rest`): the mean specific force f (body) of a
+    vehicle that does not accelerate as a measurement of gravity and the accelerometer's
+    bias, ``h = C_bn (-g_n) + b_a``, ``H_att = [h_g]x``, ``H_ba = I``, R = var I, gated at
+    gate_accel. Innovation key: ``"level"``. The INS takes the accelerometer as its input and
+    otherwise sees its tilt only through GNSS velocity; a strapdown INS levels on its
+    accelerometers while it stands still (stationary, or "fine", alignment)."""
+    g = prm["gravity"]
+    c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+    y0, y1, y2 = c[6] * -g, c[7] * -g, c[8] * -g  # C_bn (-g_n)
+    _vector_rows(work, sup[0], y0, y1, y2, var)
+    nsup = _bias_rows(work, sup[0], cfg["i_ba"], np.int64(3))
+    nu = work[W_NU]
+    nu[0], nu[1], nu[2] = fx - y0 - x[X_BA], fy - y1 - x[X_BA + 1], fz - y2 - x[X_BA + 2]
+    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_LEVEL), t, np.int64(3), np.int64(nsup),
+          prm["gate_accel2"])

@@ -90,6 +90,7 @@ from windahrs.core.layout import (
     N_X,
     NMAX,
     PRM,
+    REST_ALIGN,
     REST_OFF,
     REST_ON,
     REST_START,
@@ -625,7 +626,7 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
 _KINDS = {"mekf": KIND_MEKF, "mekf-air": KIND_MEKF_AIR, "ins-wind": KIND_INS}
 _COMP = {"none": COMP_NONE, "gnss": COMP_GNSS, "airspeed": COMP_AIRSPEED}
 _MAG = {"3d": MAG_3D, "heading": MAG_HEADING, "off": MAG_OFF}
-_REST = {"auto": REST_OFF, "on": REST_ON, "off": REST_OFF, "start": REST_START}
+_REST = {"auto": REST_OFF, "on": REST_ON, "off": REST_OFF, "start": REST_START, "align": REST_ALIGN}
 _AIR = {"auto": AIR_AUTO, "vector": AIR_VECTOR, "airspeed": AIR_AIRSPEED, "off": AIR_OFF}
 _STREAMS = ("imu", "mag", "gnss", "air")
 #: The covariance is zero-padded to a multiple of PAD rows and columns (whole SIMD lanes).
@@ -721,6 +722,8 @@ def make_state(
     cfg["gated_start"] = int(p.gated_start and cfg["start_check"] == 1 and not additive)
     if p.rest_detection == "auto":
         cfg["rest"] = REST_ON if cfg["tilt_only"] == 1 else REST_OFF
+        if kind == "ins-wind" and ini is None:  # the INS's stationary alignment (aid.rest), unless its start is given
+            cfg["rest"] = REST_ALIGN
     online = p.accel_noise_online and p.accel_lowpass > 0
     cfg["accel_noise_online"] = (2 if p.accel_noise_mean_start else 1) if online else 0
     if kind == "ins-wind":  # the INS takes the accelerometer as its input: its noise from the flight

@@ -68,7 +68,7 @@ ADD_NONE, ADD_ATT, ADD_COV = 0, 1, 2
 COMP_NONE, COMP_GNSS, COMP_AIRSPEED = 0, 1, 2
 MAG_3D, MAG_HEADING, MAG_OFF = 0, 1, 2
 AIR_AUTO, AIR_VECTOR, AIR_AIRSPEED, AIR_OFF = 0, 1, 2, 3
-REST_OFF, REST_ON, REST_START = 0, 1, 2
+REST_OFF, REST_ON, REST_START, REST_ALIGN = 0, 1, 2, 3
 
 #: The sensor registry: each aid source's innovation log as (key, the Flight stream that
 #: feeds it, rows, the rows' labels). Each aid source (windahrs.aid) logs under its key; a
@@ -84,6 +84,7 @@ AID_LOGS: tuple[tuple[str, str, int, str], ...] = (
     ("drag", "imu", 2, "xy"),
     ("aoa", "air", 1, ""),  # an angle-of-attack vane without a sideslip vane (aid.aoa)
     ("rest", "imu", 3, "xyz"),  # the gyro at rest as a measurement of its bias (aid.rest)
+    ("level", "imu", 3, "xyz"),  # the INS at rest: the mean specific force as gravity (aid.rest)
     # not a sensor: the resets of the state to a sensor that its gate kept out too long
     # (rows: the sensor's index in this table, the size of the reset, how long it was out)
     ("reset", "imu", 3, ""),
@@ -107,6 +108,7 @@ INN_AIR, INN_TAS, INN_SIDESLIP = SENSORS.index("air"), SENSORS.index("tas"), SEN
 INN_DRAG = SENSORS.index("drag")
 INN_AOA = SENSORS.index("aoa")
 INN_REST = SENSORS.index("rest")
+INN_LEVEL = SENSORS.index("level")
 INN_ASPD = SENSORS.index("aspd")
 INN_RESET = SENSORS.index("reset")
 INN_IMU = SENSORS.index("imu")
@@ -147,7 +149,8 @@ CFG_FIELDS: tuple[tuple[str, int, str], ...] = (
     ),
     ("cov_every", 1, "the covariance is recorded at every this-many-th IMU sample (kernel.record)"),
     ("airspeed_scale", 1, "1: estimate the airspeed scale on line (aid.airspeed_scale)"),
-    ("rest", 1, "REST_*: fuse the gyro's bias at rest (aid.rest): never, always, until the first motion"),
+    ("rest", 1, "REST_*: fuse the gyro's bias (and the INS's gravity) at rest (aid.rest): never, always, until"
+     " the first motion after a rest, until the first motion"),
     ("tilt_only", 1, "1: the gravity update corrects the tilt only (no heading aid: core.kalman._fuse)"),
     ("start_check", 1, "1: the gravity mean's start is checked against a running mean (aid.gravity.start_check)"),
     ("gated_start", 1, "1: a start off the gravity gate fuses samples first, keeps the gyro bias (aid.gravity)"),

@@ -101,6 +101,17 @@ def track_accel_noise(cfg, prm, x, dt):
     x[X_AVAR] += gain * ((d0 * d0 + d1 * d1 + d2 * d2) / 6.0 - x[X_AVAR])
 
 
+@njit(inline="always", **_JIT_CORE)
+def ins_accel_density2(cfg, prm, x, dt):
+    """The INS's accelerometer noise density squared, (m/s^2)^2/Hz: accel_noise's, or the
+    noise measured on line (x[X_AVAR], a per-sample variance: density^2 = var * step, at the
+    sample step dt s) when that is larger (accel_noise_measured)."""
+    sa2 = prm["accel_noise2"]
+    if cfg["accel_noise_online"] >= 1:
+        sa2 = max(sa2, x[X_AVAR] * dt)
+    return sa2
+
+
 @njit(**_JIT_FMA)
 def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     """The error-state prediction (SPEC 2.4, 2.5), using Phi's block structure: only the attitude (and velocity)
@@ -256,9 +267,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     qaa = sg2 * dt + sb2 * dt**3 / 3.0
     qab = -sb2 * dt**2 / 2.0
     qbb = sb2 * dt
-    sa2 = prm["accel_noise2"]
-    if iv >= 0 and cfg["accel_noise_online"] >= 1:  # the INS input's density at least the noise measured
-        sa2 = max(sa2, x[X_AVAR] * dt)  # (a per-sample variance: density^2 = var * step)
+    sa2 = ins_accel_density2(cfg, prm, x, dt) if iv >= 0 else prm["accel_noise2"]
     if prm["gyro_bias_noise_dv2"] != 0.0:  # the bias's walk about the vertical: its own density
         _bias_walk_vertical(x, P, ib, prm["gyro_bias_noise_dv2"], dt)
     for k in range(3):

@@ -59,6 +59,18 @@ the causal INS gets wrong before it converges. Measured on the same 16 flights
 [mekf]'s 3.376 / 5.046, vqf-offline 3.542 / 4.929; on the even / odd flights, tilt 3.38 /
 2.35 against [mekf]'s 3.84 / 3.09 (no parameter chosen: the rule is the only change).
 
+A flight that starts still (on the ground): the INS levels on its accelerometers while it
+stands still before it first moves (its stationary alignment, :mod:`windahrs.aid.rest`),
+first rest_min_time after the start; until then GNSS velocity is its only view of the
+tilt, and at rest a poor one. So [mekf] runs beside it, and the output is [mekf]'s tilt
+turned to the INS's heading until the INS's first levelling (:func:`levelled_index`), when
+that comes within :func:`still_start_s` of the start (a later one is a rest that began after
+the start, a hover that passes for rest, by when GNSS has aligned the INS); the INS's from
+then on; ``meta["auto_levelled_s"]`` says when. Measured (docs/RESULTS.md section 38;
+``benchmarks/auto_check.py``): PX4 ``sample_log_small.ulg`` (6.5 s on the ground) tilt
+against EKF2 0.586 -> 0.152 deg ([mekf] 0.146, [ins-wind] alone 0.586 -> 0.475 with its
+levelling); the simulated flights and the other recordings within 1 % of before.
+
 After the run, an INS that fails the tilt check is replaced by the run without GNSS when
 that one fails it for less time (see :meth:`Auto.run`).
 
@@ -122,7 +134,10 @@ from windahrs.filters.params import EskfParams, changes_from_mapping, read_param
 from windahrs.flight import Flight, Site
 from windahrs.rotation import euler_from_quat, quat_mul, quat_rotate_inv
 
-__all__ = ["Auto", "AutoChoice", "describe_choice", "gate_closed", "handover_index", "splice", "usable_streams"]
+__all__ = [
+    "Auto", "AutoChoice", "describe_choice", "gate_closed", "handover_index", "levelled_index", "splice",
+    "still_start_s", "usable_streams",
+]
 
 F64 = NDArray[np.float64]
 
@@ -302,6 +317,8 @@ class Auto(Estimator):
         est, caught = _run_quietly(choice.estimator, flight, initial, smooth)
         if headless and not unsynced and initial is None:
             est, caught, choice = self._handover(flight, streams, est, caught, choice)
+        elif "gnss" in choice.sensors and not smooth and initial is None and self._levelled(est, choice):
+            est, caught, choice = self._still_start(flight, streams, est, caught, choice)
         duration = float(flight.imu.t[-1] - flight.imu.t[0])
         if "gnss" in choice.sensors and _alert_seconds(est) > FALLBACK_SHARE * duration:
             other = self.choose(streams - {"gnss"})
@@ -336,6 +353,8 @@ class Auto(Estimator):
         except ValueError as exc:  # (an INS that cannot run this flight: the run without GNSS stands)
             return before, caught, dataclasses.replace(choice, reason=f"{choice.reason}; the INS beside it: {exc}")
         k = handover_index(ins)
+        if k is not None:  # (and not before a still start's levelling: _still_start)
+            k = max(k, self._levelled(ins, ins_choice) or 0)
         if k is None:
             why = (f"; the INS beside it never knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
                    "(1 sigma)")
@@ -344,16 +363,47 @@ class Auto(Estimator):
         early = np.arange(len(ins.t)) < k
         closed = gate_closed(ins) & ~early
         take = early | closed
-        with warnings.catch_warnings(record=True) as held:
-            warnings.simplefilter("always")
-            est = checked(splice(before, ins, take), flight)
+        est, held = _spliced(before, ins, take, flight)
         dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
                   f"{t_h:.2f} s, when the INS knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
                   "(1 sigma), the INS after, but for its tilt while its GNSS gate is closed")
         meta = {"auto_handover_s": t_h, "auto_gate_closed_s": round(float(closed.sum()) * dt, 3)}
         est = dataclasses.replace(est, meta={**est.meta, **meta})
-        return est, list(held), dataclasses.replace(ins_choice, reason=reason)
+        return est, held, dataclasses.replace(ins_choice, reason=reason)
+
+    @staticmethod
+    def _levelled(ins: Estimate, choice: AutoChoice) -> int | None:
+        """The INS's first levelling at a still start (:func:`levelled_index`), or None."""
+        params = getattr(choice.estimator, "params", None)
+        if not isinstance(params, EskfParams):
+            return None
+        return levelled_index(ins, still_start_s(params))
+
+    def _still_start(
+        self,
+        flight: Flight,
+        streams: frozenset[str],
+        ins: Estimate,
+        caught: list[warnings.WarningMessage],
+        choice: AutoChoice,
+    ) -> tuple[Estimate, list[warnings.WarningMessage], AutoChoice]:
+        """A flight that starts still (module docstring): the run without GNSS beside the
+        INS, and its tilt with the INS's heading until the INS levelled on its
+        accelerometers (:func:`levelled_index`), the INS after (:func:`splice`), checked
+        again. Returns the estimate, its warnings and what ran."""
+        k = self._levelled(ins, choice) or 0
+        other = self.choose(streams - {"gnss"})
+        try:
+            before, _ = _run_quietly(other.estimator, flight, None)
+        except ValueError:  # (the INS alone then)
+            return ins, caught, choice
+        est, held = _spliced(before, ins, np.arange(len(ins.t)) < k, flight)
+        t_l = float(flight.imu.t[k] - flight.imu.t[0])
+        reason = (f"{choice.reason}; {other.spec}'s tilt with the INS's heading until {t_l:.2f} s, when the "
+                  "INS, started still, levelled on its accelerometers")
+        est = dataclasses.replace(est, meta={**est.meta, "auto_levelled_s": t_l})
+        return est, held, dataclasses.replace(choice, reason=reason)
 
     def streamer(
         self, site: Site, *, initial: InitialState | None = None, has: frozenset[str] = frozenset()
@@ -362,6 +412,16 @@ class Auto(Estimator):
         choice = self.choose(has)
         est = choice.estimator
         return est.streamer(site, initial=initial, has=frozenset(has) & est.uses)
+
+
+def _spliced(
+    before: Estimate, after: Estimate, take: NDArray[np.bool_], flight: Flight
+) -> tuple[Estimate, list[warnings.WarningMessage]]:
+    """:func:`splice` checked again on ``flight``, and the warnings the check emitted, held back."""
+    with warnings.catch_warnings(record=True) as held:
+        warnings.simplefilter("always")
+        est = checked(splice(before, after, take), flight)
+    return est, list(held)
 
 
 def _run_quietly(
@@ -394,6 +454,25 @@ def handover_index(est: Estimate, sigma: float = HANDOVER_HEADING_SIGMA) -> int 
     var = np.einsum("ni,nij,nj->n", d, est.cov[:, :3, :3], d)
     ok = np.flatnonzero(var < sigma * sigma)  # (NaN rows: not below)
     return int(rows[ok[0]]) if len(ok) else None
+
+
+def levelled_index(est: Estimate, within: float = math.inf) -> int | None:
+    """The IMU sample of ``est``'s first levelling at rest (its ``"level"`` log: an INS
+    standing still, :mod:`windahrs.aid.rest`), when it was accepted within ``within`` s of
+    the start; None without one."""
+    inn = est.innovations.get("level")
+    if inn is None or not np.any(inn.accepted):
+        return None
+    t = float(inn.t[np.flatnonzero(inn.accepted)[0]])
+    return min(int(np.searchsorted(est.t, t)), len(est.t) - 1) if t - est.t[0] <= within else None
+
+
+def still_start_s(params: EskfParams) -> float:
+    """How long after the start an INS that stood still from it first levels (aid.rest):
+    rest_min_time, and one rest_tau more, the spacing of its measurements. A later first
+    levelling is a rest that began after the start (a hover that passes for rest), by when
+    GNSS has aligned the INS."""
+    return params.rest_tau + params.rest_min_time
 
 
 def gate_closed(est: Estimate, sensor: str = "gnss") -> NDArray[np.bool_]:

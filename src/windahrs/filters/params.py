@@ -319,13 +319,16 @@ class EskfParams:
     ``Estimate.alerts["imu"]``.
 
     Rest (:mod:`windahrs.aid.rest`; [mekf], [mekf-air], [ins-wind], [ekf7], [ekf10]):
-    rest_detection ("on", "off", "start": until the first motion after a rest, or "auto":
-    on without a heading aid, in the error-state filters that fuse gravity, where it is the
-    only measurement of the vertical gyro bias, else off)
-    fuses the low-passed angular rate as the gyro bias while the vehicle is at rest: every
+    rest_detection ("on", "off", "start": until the first motion after a rest, "align": until
+    the first motion, or "auto": on without a heading aid, in the error-state filters that
+    fuse gravity, where it is the only measurement of the vertical gyro bias; "align" in the
+    INS, its stationary alignment, unless its start is given; else off)
+    fuses, while the vehicle is at rest, the low-passed angular rate as the gyro bias (the
+    INS: the low-passed specific force as gravity instead): every
     sample within rest_gyro_threshold rad/s
     and rest_accel_threshold m/s^2 of its rest_tau s low-pass, the mean rate within
-    rest_bias_clip rad/s, for rest_min_time s; rest_bias_sigma rad/s, the measurement's
+    rest_bias_clip rad/s, and the mean rate steady (within the rest gate, gate_accel) for
+    rest_min_time s; rest_bias_sigma rad/s, the measurement's
     spread. Defaults: VQF's restThGyr 2 deg/s, restThAcc 0.5 m/s^2, restFilterTau 0.5 s,
     restMinT 1.5 s, biasSigmaRest 0.03 deg/s, biasClip 2 deg/s.
     """
@@ -396,7 +399,7 @@ class EskfParams:
     gyro_range: float = GYRO_RANGE
     accel_range: float = ACCEL_RANGE
     imu_spike_gate: float = 8.0
-    rest_detection: Literal["auto", "on", "off", "start"] = "auto"
+    rest_detection: Literal["auto", "on", "off", "start", "align"] = "auto"
     rest_gyro_threshold: float = 2.0 * DEG
     rest_accel_threshold: float = 0.5
     rest_tau: float = 0.5
@@ -410,7 +413,7 @@ class EskfParams:
             "mag_mode": ("3d", "heading", "off"),
             "heading_model": ("yaw", "vertical"),
             "air_mode": ("auto", "vector", "airspeed", "off"),
-            "rest_detection": ("auto", "on", "off", "start"),
+            "rest_detection": ("auto", "on", "off", "start", "align"),
         }
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
