@@ -86,7 +86,7 @@ PARAMS = (
 REST_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("w", 3, "low-passed angular rate, rad/s"),
     ("f", 3, "low-passed specific force, m/s^2"),
-    ("n", 1, "samples in those low-passes (0: not started; -1: rest_detection \"start\" after the first motion)"),
+    ("n", 1, "samples in those low-passes (0: not started; -1: \"start\" or \"align\" after the first motion)"),
     ("t_rest", 1, "when the current rest began, s (NaN: moving)"),
     ("t_fuse", 1, "when the rest measurement was last fused, s (-inf: never)"),
     ("w0", 3, "the low-passed rate rest_tau after the current rest began, rad/s (NaN: not yet)"),
@@ -105,7 +105,8 @@ def rest_state() -> NDArray[np.void]:
 @njit(inline="always", **_JIT_CORE)
 def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row, dt):
     """IMU sample ``row`` = [w_b, f_b] at t s, dt s after the last one: rest detection,
-    and at rest (once per rest_tau) the low-passed angular rate fused as the gyro bias.
+    and at rest (once per rest_tau) the low-passed angular rate fused as the gyro bias (the
+    INS: the low-passed specific force as gravity, :func:`~windahrs.aid.gravity.fuse_level`).
     rs: the detector's record (:data:`REST`), read and written in place."""
     if rs["n"] < 0.0:  # (rest_detection "start" or "align", after the first motion)
         return
