@@ -152,3 +152,34 @@ def test_alfa_scale_from_its_own_wind_triangle() -> None:
     assert a is not None
     assert 0.9 <= a[-1, 1] <= 1.15 and a[-1, 2] < 0.03
     assert a[:, 4].mean() > 0.9
+
+
+def test_an_airspeed_near_zero_goes_only_to_the_air_data_vector() -> None:
+    """A pitot reading within gate_air sigmas of zero (2.5 m/s at the defaults), or negative,
+    cannot be told from still air (PX4 sample_log_small.ulg on the ground reads -3 m/s): the
+    airspeed, the angle of attack, the synthetic sideslip and the airspeed scale, singular at
+    zero, leave it out; the paper's air-data vector, linear, still fuses it
+    (core.kernel.flying_on_the_air)."""
+    import dataclasses
+
+    f = simulate(make_scenario("fixedwing", wind=5.0, duration=40.0), np.random.default_rng(2))
+    assert f.air is not None
+    tas = f.air.tas.copy()
+    low = (f.air.t >= 20.0) & (f.air.t < 30.0)
+    tas[low] = np.where(f.air.t[low] < 25.0, 2.4, -3.0)
+    f2 = f.replace(air=dataclasses.replace(f.air, tas=tas))
+
+    def inside(t: np.ndarray, lo: float = 20.0, hi: float = 30.0) -> bool:
+        return bool(((t >= lo) & (t < hi)).any())
+
+    for spec in ("ins-wind:air_mode=airspeed", "mekf-air:air_mode=airspeed", "ekf10:air_mode=airspeed",
+                 "ins-wind:air_mode=airspeed:airspeed_scale=true"):
+        inn = make_estimator(spec).run(f2).innovations
+        for k in ("tas", "sideslip"):
+            t = inn[k].t
+            assert not inside(t) and inside(t, 30.0, 40.0) and inside(t, 0.0, 20.0), (spec, k)
+    for spec in ("ins-wind", "mekf-air", "ins-wind:airspeed_scale=true"):  # the vector (both vanes) goes on
+        assert inside(make_estimator(spec).run(f2).innovations["air"].t), spec
+    # the threshold is gate_air tas_sigma: at tas_sigma 0.4 (2.0 m/s) the 2.4 m/s readings are fused
+    t = make_estimator("ins-wind:air_mode=airspeed:tas_sigma=0.4").run(f2).innovations["tas"].t
+    assert inside(t, 20.0, 25.0) and not inside(t, 25.0, 30.0)

@@ -455,16 +455,38 @@ def step_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
 
 
 @njit(inline="always", **_JIT_CORE)
+def flying_on_the_air(prm, tas):
+    """Whether an airspeed reading of tas m/s is beyond gate_air sigmas (tas_sigma) of zero.
+    The true airspeed ``|V_air|``, the angle of attack and the synthetic zero sideslip are
+    functions of the air-relative velocity that are singular at zero (a length, and angles of
+    a vector without a direction there): their linearisations hold only well away from it,
+    and a reading within gate_air sigmas of zero cannot tell where that is. PX4 EKF2 likewise
+    fuses an airspeed only above EKF2_ARSP_THR, and only a positive one. (PX4's
+    airspeed_validated on PX4 ``sample_log_small.ulg``, on the ground, reads -3.2 to -1.7 m/s.)
+    The paper's air-data vector ``V_T^b`` is linear in the air-relative velocity and is fused
+    at any airspeed."""
+    return tas > 0.0 and tas * tas > prm["gate_air2"] * prm["tas_var"]
+
+
+@njit(inline="always", **_JIT_CORE)
 def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, tas, aoa, beta):
     """An air-data sample: tas m/s (finite), aoa and sideslip rad (NaN: no vanes), at t s,
     to its aid sources: the air-data vector with both vanes (air_mode "vector", or "auto"),
     else true airspeed, the angle of attack of a vane without a sideslip vane ("vector" or
     "auto") and (synthetic_sideslip) a zero sideslip. With airspeed_scale, the airspeed is
     first corrected by the scale estimated on line (:mod:`windahrs.aid.airspeed_scale`; ac: its
-    record, ASC)."""
+    record, ASC). An airspeed within gate_air sigmas of zero (or below it) goes only to the
+    air-data vector (:func:`flying_on_the_air`)."""
     vanes, ca, sa, cb, sb = remember_air(x, flags, tas, aoa, beta)
     kind = cfg["kind"]
     if flags[S_INIT] == 0 or kind == KIND_MEKF or cfg["air_mode"] == AIR_OFF:
+        return
+    mode = cfg["air_mode"]
+    if mode == AIR_AUTO:
+        mode = AIR_VECTOR if vanes else AIR_AIRSPEED
+    vector = mode == AIR_VECTOR and vanes
+    flying = flying_on_the_air(prm, tas)
+    if not (flying or vector):
         return
     extra = 0.0
     if kind == KIND_MEKF_AIR:  # GNSS velocity as an input
@@ -473,7 +495,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, tas, aoa, beta):
         extra = prm["gnss_var"]
     use_v = cfg["i_v"] >= 0
     extra_tas = extra  # the airspeed's added variance (the scale's too, when estimated)
-    if cfg["airspeed_scale"] == 1:
+    if cfg["airspeed_scale"] == 1 and flying:
         bv = beta if cfg["air_mode"] != AIR_AIRSPEED else np.nan  # the sideslip vane's, when fused
         syn = cfg["synthetic_sideslip"] == 1
         tc, var_scale = airspeed_scale_step(prm, x, flags, ac, inn, acc, cfg, work, t, tas, bv, syn, use_v)
@@ -483,10 +505,7 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, tas, aoa, beta):
         extra_tas = extra + var_scale
     if flags[S_WPEND] == 1:
         init_wind(x, flags, use_v, vanes)
-    mode = cfg["air_mode"]
-    if mode == AIR_AUTO:
-        mode = AIR_VECTOR if vanes else AIR_AIRSPEED
-    if mode == AIR_VECTOR and vanes:
+    if vector:
         fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra_tas)
         return
     fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra_tas)
