@@ -670,7 +670,7 @@ def test_dataflash_truncated(tmp_path: Path) -> None:
 
 
 def test_formats_and_windahrs_file(tmp_path: Path, rng: np.random.Generator) -> None:
-    assert set(FORMATS) == {"ulog", "dataflash", "broad", "windahrs", "alfa", "csv", "ansfl"}
+    assert set(FORMATS) == {"ulog", "dataflash", "broad", "windahrs", "alfa", "csv", "ansfl", "asl"}
     flight = make_flight(rng).replace(meta={"source": "sim"})
     path = save_flight(flight, tmp_path / "f.h5")
     assert detect_format(path) == "windahrs"

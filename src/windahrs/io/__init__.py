@@ -27,6 +27,8 @@ format          recognised by
                 ``docs/csv-format.md``
 ``ansfl``       a directory holding ``GT.csv`` and at least one ``IMU_<k>.csv`` (ANSFL
                 quadrotor dataset: DJI flight log and Xsens DOT IMUs)
+``asl``         a directory holding ``mav0/imu0/data.csv``, or such a ``mav0`` (the ASL
+                layout: EuRoC MAV, TUM-VI; :mod:`windahrs.io.asl`)
 ==============  ===========================================================================
 """
 
@@ -40,6 +42,7 @@ from typing import Any
 
 from windahrs.flight import Flight
 from windahrs.io.ansfl import ANSFL_GT_FILE, is_ansfl_dir, read_ansfl
+from windahrs.io.asl import is_asl_dir, read_asl
 from windahrs.io.broad import broad_movement_mask, read_broad
 from windahrs.io.csv import ALFA_IMU_FILE, CSV_MANIFEST, read_alfa, read_csv_dir
 from windahrs.io.dataflash import read_dataflash
@@ -54,6 +57,7 @@ __all__ = [
     "detect_format",
     "read_alfa",
     "read_ansfl",
+    "read_asl",
     "read_broad",
     "read_csv_dir",
     "read_dataflash",
@@ -62,7 +66,7 @@ __all__ = [
 ]
 
 #: The formats :func:`read_flight` knows, by name (the ``fmt`` argument).
-FORMATS: tuple[str, ...] = ("ulog", "dataflash", "broad", "windahrs", "alfa", "csv", "ansfl")
+FORMATS: tuple[str, ...] = ("ulog", "dataflash", "broad", "windahrs", "alfa", "csv", "ansfl", "asl")
 
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
 _DATAFLASH_MAGIC = b"\xa3\x95\x80"
@@ -95,6 +99,7 @@ def read_flight(path: str | os.PathLike[str], *, fmt: str | None = None, **optio
         "alfa": read_alfa,
         "csv": read_csv_dir,
         "ansfl": read_ansfl,
+        "asl": read_asl,
     }
     reader = readers[fmt]
     try:
@@ -117,9 +122,12 @@ def detect_format(path: str | os.PathLike[str]) -> str:
             return "alfa"
         if is_ansfl_dir(p):
             return "ansfl"
+        if is_asl_dir(p):
+            return "asl"
         raise LogFormatError(
             p, f"unknown directory format: expected {CSV_MANIFEST} (generic CSV), "
-            f"{ALFA_IMU_FILE} (ALFA mavros CSV) or {ANSFL_GT_FILE} with IMU_<k>.csv (ANSFL)"
+            f"{ALFA_IMU_FILE} (ALFA mavros CSV), {ANSFL_GT_FILE} with IMU_<k>.csv (ANSFL) "
+            "or mav0/imu0/data.csv (ASL: EuRoC, TUM-VI)"
         )
     if not p.is_file():
         raise LogFormatError(p, "no such file or directory")
@@ -140,7 +148,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         raise LogFormatError(p, "empty file")
     raise LogFormatError(
         p, f"unknown format (extension {ext or 'none'!r}; known: .ulg, .bin, .log, .hdf5, "
-        f".h5, or a directory with {CSV_MANIFEST}, {ALFA_IMU_FILE} or {ANSFL_GT_FILE})"
+        f".h5, or a directory with {CSV_MANIFEST}, {ALFA_IMU_FILE}, {ANSFL_GT_FILE} or mav0/imu0/data.csv)"
     )
 
 
