@@ -90,6 +90,7 @@ class Seed:
     def write(self, root: Path, name: str, data: bytes) -> Path:
         """Write the seed under ``root`` with file ``name`` replaced by ``data``."""
         for rel, content in self.files.items():
+            (root / rel).parent.mkdir(parents=True, exist_ok=True)
             (root / rel).write_bytes(data if rel == name else content)
         return root / self.target if self.target else root
 
@@ -108,6 +109,22 @@ def csv_text(header: list[str], columns: list[np.ndarray]) -> bytes:
     rows = np.column_stack(columns)
     lines = [",".join(header)] + [",".join(repr(float(x)) for x in row) for row in rows]
     return ("\n".join(lines) + "\n").encode()
+
+
+def asl_files(flight: Flight) -> dict[str, bytes]:
+    """``flight`` in the ASL layout (EuRoC: windahrs.io.asl): ns stamps, the IMU and the
+    ground truth's attitude, EuRoC's headers (the ground truth's padded with blanks)."""
+    truth = flight.truth
+    assert truth is not None
+    ns = 1_403_636_579_000_000_000 + np.round(flight.imu.t * 1e9).astype(np.int64)
+    imu = ["#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+           "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]"]
+    imu += [f"{n}," + ",".join(repr(float(v)) for v in (*w, *a))
+            for n, w, a in zip(ns, flight.imu.w_b, flight.imu.f_b, strict=True)]
+    gt = ["#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []"]
+    gt += [f"{n},0,0,0," + ",".join(repr(float(v)) for v in q) for n, q in zip(ns, truth.q_nb, strict=True)]
+    return {"mav0/imu0/data.csv": ("\n".join(imu) + "\n").encode(),
+            "mav0/state_groundtruth_estimate0/data.csv": ("\n".join(gt) + "\n").encode()}
 
 
 def csv_files(flight: Flight) -> dict[str, bytes]:
@@ -216,7 +233,7 @@ def sim_flight() -> Flight:
     return simulated_flight()
 
 
-GENERATED = ("ulog", "dataflash", "windahrs", "csv", "broad")
+GENERATED = ("ulog", "dataflash", "windahrs", "csv", "broad", "asl")
 REAL = ("px4-real", "broad-real", "alfa-real")
 
 
@@ -235,6 +252,8 @@ def make_seed(kind: str, request: pytest.FixtureRequest) -> Seed:
         return Seed(kind, csv_files(request.getfixturevalue("sim_flight")), "")
     if kind == "broad":
         return Seed(kind, {"trial.hdf5": broad_bytes()}, "trial.hdf5")
+    if kind == "asl":
+        return Seed(kind, asl_files(request.getfixturevalue("sim_flight")), "")
     if kind == "px4-real":  # the first 400 kB: definitions and about 40 % of the data
         return Seed(kind, real_files("px4", "sample_log_small.ulg", limit=400_000), "sample_log_small.ulg")
     if kind == "broad-real":  # the smallest trial, 3.3 MB

@@ -159,6 +159,8 @@ def read_asl(path: str | os.PathLike[str]) -> Flight:
     rep = RepairLog()
     origin = int(imu_table.time.min())
     t_imu, v_imu = _seconds(imu_table, _S, origin, "imu", meta, rep)
+    if len(t_imu) == 0:
+        raise LogFormatError(imu_path, "no IMU samples")
     w_s = rep.rows("imu", _stack(v_imu, imu_cols[:3]), GYRO_RANGE)
     f_s = rep.rows("imu", _stack(v_imu, imu_cols[3:]), ACCEL_RANGE)
     # the body frame: S turned so that the first second's mean specific force points up
