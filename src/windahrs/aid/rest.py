@@ -140,7 +140,8 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row, dt):
     # its value w0 at the window's start, gate_accel sigmas of the difference of two rest
     # measurements (rest_var and the gyro's white noise left in each mean); beyond it, the
     # window starts again
-    lim2 = prm["gate_accel2"] * 2.0 * (prm["rest_var"] + prm["gyro_noise2"] / (2.0 * tau))
+    var = prm["rest_var"] + prm["gyro_noise2"] / (2.0 * tau)  # (a rest measurement's variance, below)
+    lim2 = prm["gate_accel2"] * 2.0 * var
     steady = not math.isnan(rs["w0"][0])
     for i in range(3):
         steady = steady and (rs["w"][i] - rs["w0"][i]) ** 2 <= lim2
@@ -152,12 +153,11 @@ def fuse_rest(cfg, prm, x, flags, P, work, sup, inn, acc, rs, t, row, dt):
         return
     rs["t_fuse"] = t
     if cfg["kind"] == KIND_INS:  # the INS levels on the mean specific force (its gyro bias: below)
-        var = ins_accel_density2(cfg, prm, x, dt) / (2.0 * tau)
-        fuse_level(cfg, prm, x, flags, P, work, sup, inn, acc, t, rs["f"][0], rs["f"][1], rs["f"][2], var)
+        var_f = ins_accel_density2(cfg, prm, x, dt) / (2.0 * tau)
+        fuse_level(cfg, prm, x, flags, P, work, sup, inn, acc, t, rs["f"][0], rs["f"][1], rs["f"][2], var_f)
         return
     H, R, nu = work[W_H : W_H + 3], work[W_R : W_R + 3], work[W_NU]
     ib = cfg["i_bg"]
-    var = prm["rest_var"] + prm["gyro_noise2"] / (2.0 * tau)
     for k in range(3):
         H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0  # (the additive form reads the attitude's columns)
         nu[k] = rs["w"][k] - x[X_BG + k]

@@ -317,8 +317,10 @@ class Auto(Estimator):
         est, caught = _run_quietly(choice.estimator, flight, initial, smooth)
         if headless and not unsynced and initial is None:
             est, caught, choice = self._handover(flight, streams, est, caught, choice)
-        elif "gnss" in choice.sensors and not smooth and initial is None and self._levelled(est, choice):
-            est, caught, choice = self._still_start(flight, streams, est, caught, choice)
+        elif "gnss" in choice.sensors and not smooth and initial is None:
+            k = self._levelled(est, choice)
+            if k:
+                est, caught, choice = self._still_start(flight, streams, est, caught, k, choice)
         duration = float(flight.imu.t[-1] - flight.imu.t[0])
         if "gnss" in choice.sensors and _alert_seconds(est) > FALLBACK_SHARE * duration:
             other = self.choose(streams - {"gnss"})
@@ -386,13 +388,13 @@ class Auto(Estimator):
         streams: frozenset[str],
         ins: Estimate,
         caught: list[warnings.WarningMessage],
+        k: int,
         choice: AutoChoice,
     ) -> tuple[Estimate, list[warnings.WarningMessage], AutoChoice]:
         """A flight that starts still (module docstring): the run without GNSS beside the
-        INS, and its tilt with the INS's heading until the INS levelled on its
-        accelerometers (:func:`levelled_index`), the INS after (:func:`splice`), checked
-        again. Returns the estimate, its warnings and what ran."""
-        k = self._levelled(ins, choice) or 0
+        INS, and its tilt with the INS's heading until sample k, where the INS levelled on its
+        accelerometers (:meth:`_levelled`), the INS after (:func:`splice`), checked again.
+        Returns the estimate, its warnings and what ran."""
         other = self.choose(streams - {"gnss"})
         try:
             before, _ = _run_quietly(other.estimator, flight, None)

@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from windahrs.flight import Flight, ImuStream, Reference
 from windahrs.io.csv import _read_table, _seconds, _stack
@@ -109,18 +110,10 @@ def _columns(path: Path, names: tuple[str, ...]) -> tuple[str, list[str]]:
 
 
 def _turn_to(u: F64, target: F64) -> F64:
-    """The smallest rotation (3x3) that takes the unit vector u to the unit vector target."""
-    v = np.cross(u, target)
-    s, c = float(np.linalg.norm(v)), float(np.dot(u, target))
-    if s < 1e-12:
-        if c > 0:
-            return np.eye(3)
-        axis = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])  # (a half turn)
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    k = v / s
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + s * kx + (1.0 - c) * (kx @ kx)
+    """The smallest rotation (3x3) that takes the unit vector u to the unit vector target
+    (scipy's ``Rotation.align_vectors`` of the one pair: its shortest rotation)."""
+    rot, _ = Rotation.align_vectors(target[None, :], u[None, :])
+    return np.asarray(rot.as_matrix(), dtype=np.float64)
 
 
 def _unit_mean(name: str, path: Path, rows: F64) -> F64:
