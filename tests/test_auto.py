@@ -16,16 +16,22 @@ from windahrs.cli import main
 from windahrs.core.kernel import CompiledEstimator
 from windahrs.estimate import Estimate, load_estimate
 from windahrs.filters.auto import (
+    ALIGN_MIN_INTERVALS,
     HANDOVER_HEADING_SIGMA,
     MAX_GNSS_TIMING_S,
     Auto,
+    _about_vertical,
+    _lanes,
+    aligned_index,
     describe_choice,
     gate_closed,
+    gnss_heading,
     handover_index,
+    lane_scores,
     splice,
     usable_streams,
 )
-from windahrs.filters.base import merge_events
+from windahrs.filters.base import InitialState, merge_events
 from windahrs.filters.eskf import InsWind, Mekf
 from windahrs.filters.registry import make_estimator
 from windahrs.flight import GnssStream
@@ -391,3 +397,122 @@ def test_an_ins_that_cannot_run_beside_mekf_leaves_mekf(headless: wa.Flight) -> 
         mekf = make_estimator("mekf").run(headless)
     assert est.meta["auto"] == "mekf" and "the INS beside it: gnss: nothing to fuse" in est.meta["auto_reason"]
     np.testing.assert_array_equal(est.q_nb, mekf.q_nb)
+
+
+def _circling(psi0: float, v_sigma: float, seed: int = 0) -> tuple[wa.Flight, Estimate]:
+    """A level sensor whose velocity turns on a 2 m/s^2 circle (3 m/s, 0.67 rad/s), 100 Hz IMU,
+    10 Hz GNSS velocity with v_sigma m/s of white noise; and an Estimate of its exact
+    attitude but for a heading psi0 rad off (as [mekf]'s without a magnetometer is)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 20.0, 0.01)
+    w, r = 2.0 / 3.0, 3.0  # rad/s; velocity radius m/s
+    a_n = np.stack([-r * w * np.sin(w * t), r * w * np.cos(w * t), np.zeros_like(t)], axis=1)
+    f_b = a_n - np.array([0.0, 0.0, 9.80665])  # heading 0, level: body = nav
+    imu_flight = wa.Flight.from_arrays(t, np.zeros((len(t), 3)), f_b)
+    tg = t[::10]
+    v = np.stack([r * np.cos(w * tg), r * np.sin(w * tg), np.zeros_like(tg)], axis=1)
+    flight = imu_flight.replace(gnss=GnssStream(t=tg, v_n=v + v_sigma * rng.standard_normal(v.shape)))
+    q = np.tile([np.cos(-psi0 / 2), 0.0, 0.0, np.sin(-psi0 / 2)], (len(t), 1))
+    return flight, Estimate(filter="x", t=t, q_nb=q)
+
+
+def test_gnss_heading_matches_the_velocity_changes_and_says_how_well() -> None:
+    psi0 = np.radians(-120.0)
+    flight, est = _circling(psi0, 0.0)
+    h = gnss_heading(flight, est)
+    assert h is not None and len(h.t) == 199
+    err = np.degrees(np.angle(np.exp(1j * (h.psi - psi0))))
+    assert np.all(np.abs(err) < 0.01)  # noiseless: from the first interval (the integration's error alone)
+    # with 0.1 m/s of GNSS noise: its sigma falls as the intervals add up, and tells the error
+    flight, est = _circling(psi0, 0.1, seed=1)
+    h = gnss_heading(flight, est)
+    assert h is not None
+    err = np.degrees(np.angle(np.exp(1j * (h.psi - psi0))))
+    s = np.degrees(h.sigma)
+    assert s[-1] < s[20] < s[5] < 15.0  # (0.14 m/s of noise on 0.2 m/s changes: 0.7 rad / sqrt(k))
+    assert np.all(np.abs(err[10:]) < 3.0 * s[10:])
+    j = aligned_index(h)
+    assert j == ALIGN_MIN_INTERVALS - 1  # the first row on enough intervals, its sigma already under 15 deg
+    assert aligned_index(h, sigma=np.radians(1e-3)) is None
+    # at rest nothing is matched: no horizontal acceleration, sigma never falls
+    still = flight.replace(gnss=GnssStream(t=flight.gnss.t, v_n=np.zeros_like(flight.gnss.v_n)))
+    rest = Estimate(filter="x", t=est.t, q_nb=est.q_nb)
+    from windahrs.flight import ImuStream
+
+    still = still.replace(imu=ImuStream(t=still.imu.t, w_b=still.imu.w_b,
+                                        f_b=np.tile([0.0, 0.0, -9.80665], (len(still.imu.t), 1))))
+    h = gnss_heading(still, rest)
+    assert h is not None and aligned_index(h) is None
+    assert gnss_heading(flight.replace(gnss=None), est) is None
+
+
+def test_lane_scores_sum_the_nis_per_component_from_a_time_at_most_the_gate() -> None:
+    from types import SimpleNamespace
+
+    from windahrs.estimate import Innovations
+
+    t = np.arange(0.0, 2.0, 0.1)
+    inn = Innovations(t=np.array([0.25, 0.55, 0.85, 1.15]), nu=np.zeros((4, 3)),
+                      nis=np.array([3.0, 300.0, np.nan, 6.0]), accepted=np.array([True, False, True, True]))
+    est = SimpleNamespace(t=t, innovations={"gnss": inn})
+    s = lane_scores(est, 0.5, 25.0)  # type: ignore[arg-type]
+    expect = np.where(t >= 1.15, 25.0 + 2.0, np.where(t >= 0.55, 25.0, 0.0))  # (the 0.25 one before 0.5 s)
+    np.testing.assert_array_equal(s, expect)
+    assert not lane_scores(est, 0.0, 25.0, "mag").any()  # type: ignore[arg-type]
+
+
+def test_two_lanes_make_one_estimate_by_sample_with_their_logs() -> None:
+    from windahrs.estimate import Innovations
+
+    t = np.arange(10.0)
+    def run(c: float) -> Estimate:
+        q = np.tile([1.0, 0.0, 0.0, 0.0], (10, 1)) * c
+        inn = Innovations(t=t + 0.5, nu=np.full((10, 3), c), nis=np.full(10, c), accepted=np.ones(10, bool))
+        return Estimate(filter="x", t=t, q_nb=q, v_n=np.full((10, 3), c), cov=np.full((10, 3, 3), c),
+                        state_labels=("att_x", "att_y", "att_z"), innovations={"gnss": inn},
+                        resets={"gnss": np.array([[2.5, c, 1.0], [7.5, c, 1.0]])})
+    use_b = t >= 5
+    out = _lanes(run(1.0), run(2.0), use_b)
+    np.testing.assert_array_equal(out.v_n[:, 0], np.where(use_b, 2.0, 1.0))
+    np.testing.assert_array_equal(out.cov[:, 0, 0], np.where(use_b, 2.0, 1.0))
+    np.testing.assert_array_equal(out.innovations["gnss"].nis, np.where(use_b, 2.0, 1.0))  # logged at t + 0.5
+    np.testing.assert_array_equal(out.resets["gnss"][:, 1], [1.0, 2.0])
+
+
+def test_without_a_magnetometer_the_ins_starts_again_from_the_heading_gnss_velocity_matches() -> None:
+    """ANSFL path_16: the INS, started with its heading unknown, claimed it to 15 deg at 1.6 s
+    while about 110 deg off and stayed 20 deg off in tilt for 8 s (docs/RESULTS.md section 40).
+    auto also runs the INS from the heading that the GNSS velocity changes match against
+    [mekf]'s attitude, replayed from the start once matched, and takes that run while its GNSS
+    innovations sum smaller: here for most of the flight, and its tilt is then no worse than
+    [mekf]'s, the better of the two single estimators on this flight."""
+    from windahrs.experiments.benchdata import aligned_recordings
+    from windahrs.metrics import attitude_errors
+
+    root = require_data("ansfl", "Horizontal", "path_16")
+    ((_, flight, scored),) = list(aligned_recordings(root))
+    est, mekf, ins = _runs(flight, "auto", "mekf", "ins-wind")
+    assert est.meta["auto_heading_matched_s"] < 3.0 and est.meta["auto_matched_share"] > 0.5
+    assert "started again from the heading that GNSS velocity matched" in est.meta["auto_reason"]
+
+    def tilt(e: Estimate) -> float:
+        x = attitude_errors(e, scored).tilt[50:]
+        return float(np.degrees(np.sqrt(np.mean(x[np.isfinite(x)] ** 2))))
+
+    assert tilt(est) <= tilt(mekf) < tilt(ins)
+    # the matched run, made here from its parts: where it is taken (and its GNSS gate open),
+    # the output is it
+    (alone,) = _runs(flight.replace(gnss=None), "mekf")
+    h = gnss_heading(flight, alone)
+    assert h is not None
+    j = aligned_index(h)
+    assert j is not None and est.meta["auto_heading_matched_s"] == pytest.approx(h.t[j] - flight.imu.t[0], abs=1e-3)
+    start = InitialState(q_nb=_about_vertical(alone.q_nb[0], float(h.psi[j])), sigma_att=float(h.sigma[j]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        matched = make_estimator("ins-wind").run(flight, initial=start)
+    use = (lane_scores(matched, h.t[j], 25.0) < lane_scores(ins, h.t[j], 25.0)) & (ins.t >= h.t[j])
+    assert est.meta["auto_matched_share"] == pytest.approx(use.mean(), abs=1e-3)
+    own = use & ~gate_closed(_lanes(ins, matched, use))
+    assert own.mean() > 0.5
+    np.testing.assert_array_equal(est.q_nb[own], matched.q_nb[own])

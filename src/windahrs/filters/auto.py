@@ -35,6 +35,27 @@ INS, which nothing else checks, while gravity checks [mekf]'s tilt at every samp
 (ArduPilot's EKF3 likewise moves to the lane whose innovations pass);
 ``meta["auto_gate_closed_s"]`` says for how long.
 
+Started with its heading unknown, the INS may also claim its heading while far off it (ANSFL
+path_16: 15 deg at 1.6 s, about 110 deg off, then 20 deg off in tilt for 8 s). So auto matches
+the heading on GNSS velocity as a strapdown INS aligns in motion (:func:`gnss_heading`): the
+change of GNSS velocity over each GNSS interval against [mekf]'s specific force rotated and
+integrated, one turn about the vertical fitted on all the intervals so far, with its 1 sigma
+from the residuals. Once that sigma is under :data:`HANDOVER_HEADING_SIGMA` on at least
+:data:`ALIGN_MIN_INTERVALS` intervals (:func:`aligned_index`, at t_m s), the INS runs again from
+the start with that heading (replayed: what a system does with the IMU and GNSS samples it
+buffered until t_m, so that its state at any t >= t_m uses the samples up to t alone), and from
+t_m the output takes whichever of the two INS runs has the smaller sum of GNSS innovations (NIS
+per component, each at most the gate squared) since t_m (:func:`lane_scores`): ArduPilot's EKF3
+chooses between its lanes by their innovation test ratios, PX4's yaw estimator weights its bank
+of headings by their likelihood. ``meta["auto_heading_matched_s"]`` is t_m and
+``meta["auto_matched_share"]`` the share of the samples from the matched run. Measured on the
+16 ANSFL flights (docs/RESULTS.md section 40; ``benchmarks/auto_check.py``, tilt aligned on
+vqf): median tilt 3.682 -> 3.439 deg, the flights more than 10 % worse than the better of
+[mekf] and [ins-wind] 4 -> 1; nothing tuned (the 15 deg is PX4's, the intervals' count a
+statistical floor). On a flight with little horizontal acceleration (the simulated quadrotor
+holding its position, the simulated fixed wing's first straight seconds) sigma stays above 15
+deg and nothing changes.
+
 Measured on the 16 ANSFL flights (docs/RESULTS.md section 34; GNSS moved onto the IMU's
 clock by ``--align``): median tilt 3.965 deg against [mekf]'s 4.442 and [ins-wind]'s 5.299,
 the handover 0.6-2.7 s after the start; even / odd flights 4.17 / 3.82 against [mekf]'s
@@ -126,17 +147,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.core.kernel import CompiledEstimator, CompiledStreamer
-from windahrs.estimate import Estimate
+from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import Estimator, InitialState
 from windahrs.filters.checks import checked
 from windahrs.filters.eskf import InsWind, Mekf
 from windahrs.filters.params import EskfParams, changes_from_mapping, read_param_file
 from windahrs.flight import Flight, Site
-from windahrs.rotation import euler_from_quat, quat_mul, quat_rotate_inv
+from windahrs.rotation import euler_from_quat, quat_mul, quat_rotate, quat_rotate_inv
 
 __all__ = [
-    "Auto", "AutoChoice", "describe_choice", "gate_closed", "handover_index", "levelled_index", "splice",
-    "still_start_s", "usable_streams",
+    "Auto", "AutoChoice", "GnssHeading", "aligned_index", "describe_choice", "gate_closed", "gnss_heading",
+    "handover_index", "lane_scores", "levelled_index", "splice", "still_start_s", "usable_streams",
 ]
 
 F64 = NDArray[np.float64]
@@ -162,6 +183,11 @@ FALLBACK_SHARE = 0.25
 #: it rather than tilt it (docs/RESULTS.md section 34; 10 deg measured 3.855 deg median tilt on
 #: ANSFL, 15 deg 3.965, 25 deg 4.658: not tuned, PX4's kept).
 HANDOVER_HEADING_SIGMA = math.radians(15.0)
+
+#: The heading matched on GNSS velocity (:func:`gnss_heading`) is taken once it rests on at least
+#: this many GNSS intervals: its residual variance, on 2 k - 1 degrees of freedom, is then known
+#: to within 50 % (1 sigma, sqrt(2 / dof) <= 0.5 from dof >= 8), and its sigma with it.
+ALIGN_MIN_INTERVALS = 5
 
 #: The estimators auto chooses from, by registry name.
 CANDIDATES: dict[str, type[CompiledEstimator]] = {"ins-wind": InsWind, "mekf": Mekf}
@@ -354,23 +380,45 @@ class Auto(Estimator):
             ins, _ = _run_quietly(ins_choice.estimator, flight, None)
         except ValueError as exc:  # (an INS that cannot run this flight: the run without GNSS stands)
             return before, caught, dataclasses.replace(choice, reason=f"{choice.reason}; the INS beside it: {exc}")
+        n = len(ins.t)
         k = handover_index(ins)
         if k is not None:  # (and not before a still start's levelling: _still_start)
             k = max(k, self._levelled(ins, ins_choice) or 0)
-        if k is None:
+        lane, use_b, aligned = ins, np.zeros(n, dtype=bool), ""
+        heading = gnss_heading(flight, before)
+        j = aligned_index(heading) if heading is not None else None
+        if heading is not None and j is not None:  # the INS again, from the matched heading
+            t_al = float(heading.t[j])
+            start = InitialState(q_nb=_about_vertical(before.q_nb[0], float(heading.psi[j])),
+                                 sigma_att=float(heading.sigma[j]))
+            try:
+                ins_b, _ = _run_quietly(ins_choice.estimator, flight, start)
+            except ValueError:  # (the INS as it started stands)
+                ins_b = None
+            if ins_b is not None:
+                gate2 = ins_choice.estimator.params.gate_gnss ** 2
+                use_b = (lane_scores(ins_b, t_al, gate2) < lane_scores(ins, t_al, gate2)) & (ins.t >= t_al)
+                lane = _lanes(ins, ins_b, use_b)
+                aligned = (f"; from {t_al - flight.imu.t[0]:.2f} s, the INS started again from the heading that "
+                           f"GNSS velocity matched then (to {math.degrees(heading.sigma[j]):.1f} deg, 1 sigma), "
+                           "taken while its GNSS innovations sum smaller")
+        early = ~use_b & (np.arange(n) < (n if k is None else k))  # (the matched INS: from its start)
+        if early.all():
             why = (f"; the INS beside it never knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
                    "(1 sigma)")
             return before, caught, dataclasses.replace(choice, reason=choice.reason + why)
-        t_h = float(flight.imu.t[k] - flight.imu.t[0])
-        early = np.arange(len(ins.t)) < k
-        closed = gate_closed(ins) & ~early
+        t_h = float(flight.imu.t[int(np.argmin(early))] - flight.imu.t[0])
+        closed = gate_closed(lane) & ~early
         take = early | closed
-        est, held = _spliced(before, ins, take, flight)
+        est, held = _spliced(before, lane, take, flight)
         dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
                   f"{t_h:.2f} s, when the INS knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
-                  "(1 sigma), the INS after, but for its tilt while its GNSS gate is closed")
+                  f"(1 sigma), the INS after, but for its tilt while its GNSS gate is closed{aligned}")
         meta = {"auto_handover_s": t_h, "auto_gate_closed_s": round(float(closed.sum()) * dt, 3)}
+        if aligned:
+            meta["auto_heading_matched_s"] = round(t_al - float(flight.imu.t[0]), 3)
+            meta["auto_matched_share"] = round(float(use_b.mean()), 3)
         est = dataclasses.replace(est, meta={**est.meta, **meta})
         return est, held, dataclasses.replace(ins_choice, reason=reason)
 
@@ -456,6 +504,123 @@ def handover_index(est: Estimate, sigma: float = HANDOVER_HEADING_SIGMA) -> int 
     var = np.einsum("ni,nij,nj->n", d, est.cov[:, :3, :3], d)
     ok = np.flatnonzero(var < sigma * sigma)  # (NaN rows: not below)
     return int(rows[ok[0]]) if len(ok) else None
+
+
+@dataclass(frozen=True)
+class GnssHeading:
+    """The heading matched on GNSS velocity (:func:`gnss_heading`), one row per GNSS interval:
+    t (K,) its end, s; psi (K,) rad, the turn about the vertical from the estimate's nav frame
+    to north, fitted on the intervals up to that one; sigma (K,) rad, its 1 sigma from the
+    fit's residuals (inf before there are any)."""
+
+    t: F64
+    psi: F64
+    sigma: F64
+
+
+def gnss_heading(flight: Flight, est: Estimate) -> GnssHeading | None:
+    """In-motion heading alignment by velocity matching, causal: over each interval between
+    GNSS samples, the change of GNSS velocity (north, east) against the specific force rotated
+    by ``est`` (an attitude whose heading is its own, e.g. [mekf]'s without a magnetometer)
+    and integrated with gravity, ``dv_gnss = R(psi) dv_imu``; psi is the 2-D Procrustes
+    (Wahba) solution on all the intervals so far, ``atan2(sum(dv_gnss x dv_imu), sum(dv_gnss .
+    dv_imu))``, and sigma^2 the residual variance per component (2 k - 1 degrees of freedom)
+    over ``sum |dv_imu|^2``. A strapdown INS without a heading sensor aligns so in motion;
+    PX4 EKF2's yaw estimator (EKFGSF_yaw) matches the same velocity changes with a bank of
+    headings. The horizontal acceleration decides how soon sigma falls: at rest it never
+    does. None without GNSS, or with fewer than two of its samples in the IMU's span."""
+    imu, g = flight.imu, flight.gnss
+    if g is None or len(imu.t) < 2:
+        return None
+    ok = np.isfinite(g.v_n[:, :2]).all(axis=1) & (g.t >= imu.t[0]) & (g.t <= imu.t[-1])
+    tg, vg = g.t[ok], g.v_n[ok, :2]
+    if len(tg) < 2:
+        return None
+    a_n = quat_rotate(est.q_nb, imu.f_b)[:, :2]  # (gravity has no horizontal part)
+    a_n = np.where(np.isfinite(a_n), a_n, 0.0)
+    step = 0.5 * (a_n[1:] + a_n[:-1]) * np.diff(imu.t)[:, None]  # (trapezoids)
+    dv = np.vstack([np.zeros((1, 2)), np.cumsum(step, axis=0)])
+    at = np.minimum(np.searchsorted(imu.t, tg), len(imu.t) - 1)
+    dvg, dvi = np.diff(vg, axis=0), np.diff(dv[at], axis=0)
+    dot = np.cumsum(dvg[:, 0] * dvi[:, 0] + dvg[:, 1] * dvi[:, 1])
+    cross = np.cumsum(dvg[:, 1] * dvi[:, 0] - dvg[:, 0] * dvi[:, 1])
+    psi = np.arctan2(cross, dot)
+    imu2, gnss2 = np.cumsum((dvi**2).sum(axis=1)), np.cumsum((dvg**2).sum(axis=1))
+    resid = np.maximum(gnss2 + imu2 - 2.0 * np.hypot(dot, cross), 0.0)  # sum |dv_gnss - R dv_imu|^2 at psi
+    dof = 2.0 * np.arange(1, len(dvg) + 1) - 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = np.where(imu2 > 0, np.sqrt(resid / dof / imu2), np.inf)
+    return GnssHeading(t=tg[1:], psi=psi, sigma=sigma)
+
+
+def aligned_index(heading: GnssHeading, sigma: float = HANDOVER_HEADING_SIGMA,
+                  min_intervals: int = ALIGN_MIN_INTERVALS) -> int | None:
+    """The first row of ``heading`` resting on at least ``min_intervals`` GNSS intervals
+    whose 1 sigma is below ``sigma`` rad (PX4's 15 deg, as the handover's), or None."""
+    rows = np.flatnonzero((heading.sigma < sigma) & (np.arange(len(heading.t)) >= min_intervals - 1))
+    return int(rows[0]) if len(rows) else None
+
+
+def lane_scores(est: Estimate, since: float, gate2: float, sensor: str = "gnss") -> F64:
+    """(N,) per IMU sample of ``est``: the sum, over its ``sensor`` innovations from ``since`` s
+    to that sample, of each one's NIS per component, at most ``gate2`` (its gate squared: a
+    sample its gate rejects counts as at the gate). Two runs of the same filter on the same
+    data compare by it: the smaller sum, the better its state has predicted the measurements,
+    as ArduPilot's EKF3 chooses between its lanes by their innovation test ratios (and a bank
+    of models by their likelihood, as PX4's yaw estimator)."""
+    inn = est.innovations.get(sensor)
+    if inn is None or len(inn.t) == 0:
+        return np.zeros(len(est.t))
+    m = max(inn.dim, 1)
+    per = np.minimum(np.asarray(inn.nis, dtype=np.float64) / m, gate2)
+    per = np.where(np.isfinite(per) & (inn.t >= since), per, 0.0)
+    total = np.r_[0.0, np.cumsum(per)]
+    return total[np.searchsorted(inn.t, est.t, side="right")]
+
+
+def _about_vertical(q_nb: F64, psi: float) -> F64:
+    """q_nb turned by psi rad about the nav vertical."""
+    q = quat_mul(np.array([math.cos(0.5 * psi), 0.0, 0.0, math.sin(0.5 * psi)]), q_nb)
+    return np.asarray(q / np.linalg.norm(q), dtype=np.float64)
+
+
+def _lanes(a: Estimate, b: Estimate, use_b: NDArray[np.bool_]) -> Estimate:
+    """Two runs of the same estimator as one: ``b``'s samples where ``use_b`` (N,), ``a``'s
+    elsewhere; the states, the covariance's rows, and the innovations and resets logged while
+    each was the one taken. The alerts are ``a``'s: check the result again."""
+    def pick(x: F64 | None, y: F64 | None) -> F64 | None:
+        if x is None or y is None:
+            return x
+        return np.where(use_b.reshape((-1,) + (1,) * (x.ndim - 1)), y, x)
+
+    def taken(t: F64) -> NDArray[np.bool_]:
+        j = np.searchsorted(a.t, t, side="right") - 1
+        return (j >= 0) & use_b[np.clip(j, 0, None)]
+
+    cov = a.cov
+    if a.cov is not None and b.cov is not None and a.cov.shape == b.cov.shape:
+        cov = np.where(use_b[a.cov_rows][:, None, None], b.cov, a.cov)
+    inns = dict(a.innovations)
+    for key, ia in a.innovations.items():
+        ib = b.innovations.get(key)
+        if ib is None:
+            continue
+        ka, kb = ~taken(ia.t), taken(ib.t)
+        order = np.argsort(np.r_[ia.t[ka], ib.t[kb]], kind="stable")
+        inns[key] = Innovations(t=np.r_[ia.t[ka], ib.t[kb]][order], nu=np.vstack([ia.nu[ka], ib.nu[kb]])[order],
+                                nis=np.r_[ia.nis[ka], ib.nis[kb]][order],
+                                accepted=np.r_[ia.accepted[ka], ib.accepted[kb]][order])
+    resets = {}
+    for key in set(a.resets) | set(b.resets):
+        ra = a.resets.get(key, np.empty((0, 3)))
+        rb = b.resets.get(key, np.empty((0, 3)))
+        rows = np.vstack([ra[~taken(ra[:, 0])], rb[taken(rb[:, 0])]])
+        if len(rows):
+            resets[key] = rows[np.argsort(rows[:, 0], kind="stable")]
+    return dataclasses.replace(
+        a, q_nb=np.where(use_b[:, None], b.q_nb, a.q_nb), gyro_bias_b=pick(a.gyro_bias_b, b.gyro_bias_b),
+        v_n=pick(a.v_n, b.v_n), wind_n=pick(a.wind_n, b.wind_n), cov=cov, innovations=inns, resets=resets,
+    )
 
 
 def levelled_index(est: Estimate, within: float = math.inf) -> int | None:
