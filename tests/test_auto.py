@@ -18,6 +18,7 @@ from windahrs.estimate import Estimate, load_estimate
 from windahrs.filters.auto import (
     ALIGN_MIN_INTERVALS,
     HANDOVER_HEADING_SIGMA,
+    LANE_SWITCH_LLR,
     MAX_GNSS_TIMING_S,
     Auto,
     _about_vertical,
@@ -27,6 +28,7 @@ from windahrs.filters.auto import (
     gate_closed,
     gnss_heading,
     handover_index,
+    lane_choice,
     lane_scores,
     splice,
     usable_streams,
@@ -446,36 +448,60 @@ def test_gnss_heading_matches_the_velocity_changes_and_says_how_well() -> None:
     assert gnss_heading(flight.replace(gnss=None), est) is None
 
 
-def test_lane_scores_sum_the_nis_per_component_from_a_time_at_most_the_gate() -> None:
+def test_lane_scores_sum_the_nis_from_a_time_a_rejected_sample_at_the_gate() -> None:
     from types import SimpleNamespace
 
     from windahrs.estimate import Innovations
 
     t = np.arange(0.0, 2.0, 0.1)
-    inn = Innovations(t=np.array([0.25, 0.55, 0.85, 1.15]), nu=np.zeros((4, 3)),
-                      nis=np.array([3.0, 300.0, np.nan, 6.0]), accepted=np.array([True, False, True, True]))
+    inn = Innovations(t=np.array([0.25, 0.55, 0.85, 1.15, 1.45]), nu=np.zeros((5, 3)),
+                      nis=np.array([3.0, 30.0, np.nan, 6.0, 400.0]),
+                      accepted=np.array([True, False, True, True, True]))
     est = SimpleNamespace(t=t, innovations={"gnss": inn})
     s = lane_scores(est, 0.5, 25.0)  # type: ignore[arg-type]
-    expect = np.where(t >= 1.15, 25.0 + 2.0, np.where(t >= 0.55, 25.0, 0.0))  # (the 0.25 one before 0.5 s)
+    # from 0.5 s: the rejected 30 counts as every component at the gate (3 x 25), the NaN as
+    # nothing, 6 as itself, an accepted 400 at most 3 x 25; the 0.25 one is before 0.5 s
+    expect = np.select([t >= 1.45, t >= 1.15, t >= 0.55], [75.0 + 6.0 + 75.0, 75.0 + 6.0, 75.0], 0.0)
     np.testing.assert_array_equal(s, expect)
     assert not lane_scores(est, 0.0, 25.0, "mag").any()  # type: ignore[arg-type]
+
+
+def test_the_lane_moves_only_once_the_likelihood_ratio_passes_its_bound() -> None:
+    # half the difference of the scores is the log-likelihood ratio (b's favour when positive)
+    llr = np.array([0.0, 2.0, 3.5, 1.0, -2.0, -3.5, 0.5, 3.0])
+    a, b = 2.0 * llr, np.zeros_like(llr)
+    on_b = lane_choice(a, b)
+    bound = LANE_SWITCH_LLR  # ln 19
+    assert 2.9 < bound < 3.0
+    np.testing.assert_array_equal(on_b, [False, False, True, True, True, False, False, True])
+    np.testing.assert_array_equal(lane_choice(a, b, start_b=True), [True, True, True, True, True, False, False, True])
+    assert not lane_choice(np.zeros(3), np.zeros(3)).any()  # even evidence: where it started
 
 
 def test_two_lanes_make_one_estimate_by_sample_with_their_logs() -> None:
     from windahrs.estimate import Innovations
 
     t = np.arange(10.0)
-    def run(c: float) -> Estimate:
-        q = np.tile([1.0, 0.0, 0.0, 0.0], (10, 1)) * c
+
+    def run(c: float, extra: str | None = None) -> Estimate:
+        q = np.tile([np.cos(c), 0.0, 0.0, np.sin(c)], (10, 1))
         inn = Innovations(t=t + 0.5, nu=np.full((10, 3), c), nis=np.full(10, c), accepted=np.ones(10, bool))
-        return Estimate(filter="x", t=t, q_nb=q, v_n=np.full((10, 3), c), cov=np.full((10, 3, 3), c),
-                        state_labels=("att_x", "att_y", "att_z"), innovations={"gnss": inn},
+        inns = {"gnss": inn, **({extra: inn} if extra else {})}
+        return Estimate(filter="x", t=t, q_nb=q, gyro_bias_b=np.full((10, 3), c), v_n=np.full((10, 3), c),
+                        wind_n=np.full((10, 3), -c), cov=np.full((5, 3, 3), c), cov_index=np.arange(0, 10, 2),
+                        state_labels=("att_x", "att_y", "att_z"), innovations=inns,
                         resets={"gnss": np.array([[2.5, c, 1.0], [7.5, c, 1.0]])})
     use_b = t >= 5
-    out = _lanes(run(1.0), run(2.0), use_b)
-    np.testing.assert_array_equal(out.v_n[:, 0], np.where(use_b, 2.0, 1.0))
-    np.testing.assert_array_equal(out.cov[:, 0, 0], np.where(use_b, 2.0, 1.0))
+    a, b = run(1.0, "only_a"), run(2.0, "only_b")
+    out = _lanes(a, b, use_b)
+    np.testing.assert_array_equal(out.q_nb, np.where(use_b[:, None], b.q_nb, a.q_nb))
+    for name, sign in (("gyro_bias_b", 1.0), ("v_n", 1.0), ("wind_n", -1.0)):
+        np.testing.assert_array_equal(getattr(out, name)[:, 0], sign * np.where(use_b, 2.0, 1.0))
+    np.testing.assert_array_equal(out.cov[:, 0, 0], [1.0, 1.0, 1.0, 2.0, 2.0])  # rows at samples 0, 2, .., 8
     np.testing.assert_array_equal(out.innovations["gnss"].nis, np.where(use_b, 2.0, 1.0))  # logged at t + 0.5
+    # a log one run kept: its rows where that run is taken
+    np.testing.assert_array_equal(out.innovations["only_a"].t, t[:5] + 0.5)
+    np.testing.assert_array_equal(out.innovations["only_b"].t, t[5:] + 0.5)
     np.testing.assert_array_equal(out.resets["gnss"][:, 1], [1.0, 2.0])
 
 
@@ -493,7 +519,7 @@ def test_without_a_magnetometer_the_ins_starts_again_from_the_heading_gnss_veloc
     ((_, flight, scored),) = list(aligned_recordings(root))
     est, mekf, ins = _runs(flight, "auto", "mekf", "ins-wind")
     assert est.meta["auto_heading_matched_s"] < 3.0 and est.meta["auto_matched_share"] > 0.5
-    assert "started again from the heading that GNSS velocity matched" in est.meta["auto_reason"]
+    assert "the INS also ran from the heading GNSS velocity matched then" in est.meta["auto_reason"]
 
     def tilt(e: Estimate) -> float:
         x = attitude_errors(e, scored).tilt[50:]
@@ -507,11 +533,18 @@ def test_without_a_magnetometer_the_ins_starts_again_from_the_heading_gnss_veloc
     assert h is not None
     j = aligned_index(h)
     assert j is not None and est.meta["auto_heading_matched_s"] == pytest.approx(h.t[j] - flight.imu.t[0], abs=1e-3)
-    start = InitialState(q_nb=_about_vertical(alone.q_nb[0], float(h.psi[j])), sigma_att=float(h.sigma[j]))
+    init_att = make_estimator("ins-wind").params.init_att  # (the matched start's tilt no surer than the INS's own)
+    q0 = _about_vertical(alone.q_nb[0], float(h.psi[j]))
+    start = InitialState(q_nb=q0, sigma_att=max(float(h.sigma[j]), init_att))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         matched = make_estimator("ins-wind").run(flight, initial=start)
-    use = (lane_scores(matched, h.t[j], 25.0) < lane_scores(ins, h.t[j], 25.0)) & (ins.t >= h.t[j])
+    # the lanes start on the first run when it had claimed its heading by the match (here
+    # 2.5 ms before it), and the matched run outweighs it soon after
+    k = handover_index(ins)
+    first_knew = k is not None and k <= int(np.searchsorted(ins.t, h.t[j]))
+    use = lane_choice(lane_scores(ins, h.t[j], 25.0), lane_scores(matched, h.t[j], 25.0), start_b=not first_knew)
+    use &= ins.t >= h.t[j]
     assert est.meta["auto_matched_share"] == pytest.approx(use.mean(), abs=1e-3)
     own = use & ~gate_closed(_lanes(ins, matched, use))
     assert own.mean() > 0.5

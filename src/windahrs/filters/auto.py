@@ -42,19 +42,24 @@ change of GNSS velocity over each GNSS interval against [mekf]'s specific force 
 integrated, one turn about the vertical fitted on all the intervals so far, with its 1 sigma
 from the residuals. Once that sigma is under :data:`HANDOVER_HEADING_SIGMA` on at least
 :data:`ALIGN_MIN_INTERVALS` intervals (:func:`aligned_index`, at t_m s), the INS runs again from
-the start with that heading (replayed: what a system does with the IMU and GNSS samples it
-buffered until t_m, so that its state at any t >= t_m uses the samples up to t alone), and from
-t_m the output takes whichever of the two INS runs has the smaller sum of GNSS innovations (NIS
-per component, each at most the gate squared) since t_m (:func:`lane_scores`): ArduPilot's EKF3
-chooses between its lanes by their innovation test ratios, PX4's yaw estimator weights its bank
-of headings by their likelihood. ``meta["auto_heading_matched_s"]`` is t_m and
-``meta["auto_matched_share"]`` the share of the samples from the matched run. Measured on the
-16 ANSFL flights (docs/RESULTS.md section 40; ``benchmarks/auto_check.py``, tilt aligned on
-vqf): median tilt 3.682 -> 3.439 deg, the flights more than 10 % worse than the better of
-[mekf] and [ins-wind] 4 -> 1; nothing tuned (the 15 deg is PX4's, the intervals' count a
-statistical floor). On a flight with little horizontal acceleration (the simulated quadrotor
-holding its position, the simulated fixed wing's first straight seconds) sigma stays above 15
-deg and nothing changes.
+the start with that heading, its attitude's spread that sigma but no less than the INS's own
+init_att (replayed: what a system does with the IMU and GNSS samples it buffered until t_m, so
+that its state at any t >= t_m uses the samples up to t alone). From t_m the output is on one
+of the two INS runs (:func:`lane_choice`): first on the one that knows its heading at t_m (the
+matched run, unless the first had claimed its own by then), then on the other only once the
+log-likelihood ratio of their GNSS innovations since t_m (:func:`lane_scores`) passes
+:data:`LANE_SWITCH_LLR` in its favour, Wald's sequential test at 5 % both ways, so that the
+output does not switch back and forth between runs whose headings differ. ArduPilot's EKF3
+chooses between its lanes by their innovation test ratios, PX4's yaw estimator weights its
+bank of headings by their likelihood. ``meta["auto_heading_matched_s"]`` is t_m and
+``meta["auto_matched_share"]`` the share of the samples from the matched run; ``auto_handover_s``
+is then the first sample taken from either run. Measured on the 16 ANSFL flights
+(docs/RESULTS.md section 40; ``benchmarks/auto_check.py``, tilt aligned on vqf): median tilt
+3.682 -> 3.322 deg, the flights more than 10 % worse than the better of [mekf] and [ins-wind]
+4 -> 0, at most one switch of run per flight; nothing tuned (the 15 deg is PX4's, the
+intervals' count a statistical floor, the bound Wald's at 5 %). On a flight with little
+horizontal acceleration (the simulated quadrotor holding its position, the simulated fixed
+wing's first straight seconds) sigma stays above 15 deg and nothing changes.
 
 Measured on the 16 ANSFL flights (docs/RESULTS.md section 34; GNSS moved onto the IMU's
 clock by ``--align``): median tilt 3.965 deg against [mekf]'s 4.442 and [ins-wind]'s 5.299,
@@ -157,7 +162,7 @@ from windahrs.rotation import euler_from_quat, quat_mul, quat_rotate, quat_rotat
 
 __all__ = [
     "Auto", "AutoChoice", "GnssHeading", "aligned_index", "describe_choice", "gate_closed", "gnss_heading",
-    "handover_index", "lane_scores", "levelled_index", "splice", "still_start_s", "usable_streams",
+    "handover_index", "lane_choice", "lane_scores", "levelled_index", "splice", "still_start_s", "usable_streams",
 ]
 
 F64 = NDArray[np.float64]
@@ -188,6 +193,13 @@ HANDOVER_HEADING_SIGMA = math.radians(15.0)
 #: this many GNSS intervals: its residual variance, on 2 k - 1 degrees of freedom, is then known
 #: to within 50 % (1 sigma, sqrt(2 / dof) <= 0.5 from dof >= 8), and its sigma with it.
 ALIGN_MIN_INTERVALS = 5
+
+#: The output moves from one INS run to the other once the log-likelihood ratio of their GNSS
+#: innovations since the match (half the difference of their :func:`lane_scores`) passes this
+#: bound in the other's favour: Wald's sequential test with 5 % errors both ways, ln(0.95 /
+#: 0.05) = ln 19. Between the two bounds the output stays where it is (:func:`lane_choice`):
+#: no switching back and forth between runs whose headings differ while the evidence is even.
+LANE_SWITCH_LLR = math.log(19.0)
 
 #: The estimators auto chooses from, by registry name.
 CANDIDATES: dict[str, type[CompiledEstimator]] = {"ins-wind": InsWind, "mekf": Mekf}
@@ -384,41 +396,52 @@ class Auto(Estimator):
         k = handover_index(ins)
         if k is not None:  # (and not before a still start's levelling: _still_start)
             k = max(k, self._levelled(ins, ins_choice) or 0)
-        lane, use_b, aligned = ins, np.zeros(n, dtype=bool), ""
+        lane, use_b, matched = ins, np.zeros(n, dtype=bool), {}
         heading = gnss_heading(flight, before)
         j = aligned_index(heading) if heading is not None else None
         if heading is not None and j is not None:  # the INS again, from the matched heading
-            t_al = float(heading.t[j])
-            start = InitialState(q_nb=_about_vertical(before.q_nb[0], float(heading.psi[j])),
-                                 sigma_att=float(heading.sigma[j]))
+            t_al, sigma_m = float(heading.t[j]), math.degrees(heading.sigma[j])
+            i0 = min(before.first_initialised, n - 1)  # (before's nav frame, where it has one)
+            params = ins_choice.estimator.params
+            start = InitialState(q_nb=_about_vertical(before.q_nb[i0], float(heading.psi[j])),
+                                 sigma_att=max(float(heading.sigma[j]), params.init_att))
             try:
                 ins_b, _ = _run_quietly(ins_choice.estimator, flight, start)
             except ValueError:  # (the INS as it started stands)
                 ins_b = None
             if ins_b is not None:
-                gate2 = ins_choice.estimator.params.gate_gnss ** 2
-                use_b = (lane_scores(ins_b, t_al, gate2) < lane_scores(ins, t_al, gate2)) & (ins.t >= t_al)
+                gate2 = params.gate_gnss**2
+                # (it starts on the run that knows its heading at the match: the matched one,
+                # unless the first had claimed its own before)
+                at = int(np.searchsorted(ins.t, t_al))
+                first_knew = k is not None and k <= at
+                scores = lane_scores(ins, t_al, gate2), lane_scores(ins_b, t_al, gate2)
+                use_b = lane_choice(*scores, start_b=not first_knew) & (ins.t >= t_al)
                 lane = _lanes(ins, ins_b, use_b)
-                aligned = (f"; from {t_al - flight.imu.t[0]:.2f} s, the INS started again from the heading that "
-                           f"GNSS velocity matched then (to {math.degrees(heading.sigma[j]):.1f} deg, 1 sigma), "
-                           "taken while its GNSS innovations sum smaller")
+                matched = {"auto_heading_matched_s": round(t_al - float(flight.imu.t[0]), 3),
+                           "auto_matched_share": round(float(use_b.mean()), 3)}
         early = ~use_b & (np.arange(n) < (n if k is None else k))  # (the matched INS: from its start)
         if early.all():
             why = (f"; the INS beside it never knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
                    "(1 sigma)")
+            if matched:
+                why += ", nor did its run from the heading GNSS velocity matched outweigh it"
             return before, caught, dataclasses.replace(choice, reason=choice.reason + why)
         t_h = float(flight.imu.t[int(np.argmin(early))] - flight.imu.t[0])
         closed = gate_closed(lane) & ~early
         take = early | closed
         est, held = _spliced(before, lane, take, flight)
         dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
+        sig = f"{math.degrees(HANDOVER_HEADING_SIGMA):g} deg (1 sigma)"
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
-                  f"{t_h:.2f} s, when the INS knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
-                  f"(1 sigma), the INS after, but for its tilt while its GNSS gate is closed{aligned}")
-        meta = {"auto_handover_s": t_h, "auto_gate_closed_s": round(float(closed.sum()) * dt, 3)}
-        if aligned:
-            meta["auto_heading_matched_s"] = round(t_al - float(flight.imu.t[0]), 3)
-            meta["auto_matched_share"] = round(float(use_b.mean()), 3)
+                  f"{t_h:.2f} s, the INS after (once it knew its heading to {sig}), but for its tilt while its "
+                  "GNSS gate is closed")
+        if use_b.any():
+            t_m = matched["auto_heading_matched_s"]
+            reason += (f"; from {t_m:.2f} s the INS also ran from the heading GNSS velocity matched then (to "
+                       f"{sigma_m:.1f} deg, 1 sigma), taken for {100 * matched['auto_matched_share']:.0f} % of the "
+                       "flight, where its GNSS innovations were the likelier")
+        meta = {"auto_handover_s": t_h, "auto_gate_closed_s": round(float(closed.sum()) * dt, 3), **matched}
         est = dataclasses.replace(est, meta={**est.meta, **meta})
         return est, held, dataclasses.replace(ins_choice, reason=reason)
 
@@ -522,13 +545,15 @@ def gnss_heading(flight: Flight, est: Estimate) -> GnssHeading | None:
     """In-motion heading alignment by velocity matching, causal: over each interval between
     GNSS samples, the change of GNSS velocity (north, east) against the specific force rotated
     by ``est`` (an attitude whose heading is its own, e.g. [mekf]'s without a magnetometer)
-    and integrated with gravity, ``dv_gnss = R(psi) dv_imu``; psi is the 2-D Procrustes
-    (Wahba) solution on all the intervals so far, ``atan2(sum(dv_gnss x dv_imu), sum(dv_gnss .
-    dv_imu))``, and sigma^2 the residual variance per component (2 k - 1 degrees of freedom)
-    over ``sum |dv_imu|^2``. A strapdown INS without a heading sensor aligns so in motion;
-    PX4 EKF2's yaw estimator (EKFGSF_yaw) matches the same velocity changes with a bank of
-    headings. The horizontal acceleration decides how soon sigma falls: at rest it never
-    does. None without GNSS, or with fewer than two of its samples in the IMU's span."""
+    and integrated with gravity, ``dv_gnss = R(psi) dv_imu``. psi is the 2-D Procrustes
+    (Wahba) solution on all the intervals so far, ``atan2(sum(dv_imu x dv_gnss), sum(dv_imu .
+    dv_gnss))`` (the cross product's vertical component); sigma^2 is the residual variance per
+    component (2 k - 1 degrees of freedom) over ``sum |dv_imu|^2``, which takes the GNSS
+    noise of the intervals as independent (consecutive differences share a sample: a sigma on
+    the safe side). A strapdown INS without a heading sensor aligns so in motion; PX4 EKF2's
+    yaw estimator (EKFGSF_yaw) matches the same velocity changes with a bank of headings. The
+    horizontal acceleration decides how soon sigma falls: at rest it never does. None without
+    GNSS, or with fewer than two of its samples in the IMU's span."""
     imu, g = flight.imu, flight.gnss
     if g is None or len(imu.t) < 2:
         return None
@@ -563,19 +588,36 @@ def aligned_index(heading: GnssHeading, sigma: float = HANDOVER_HEADING_SIGMA,
 
 def lane_scores(est: Estimate, since: float, gate2: float, sensor: str = "gnss") -> F64:
     """(N,) per IMU sample of ``est``: the sum, over its ``sensor`` innovations from ``since`` s
-    to that sample, of each one's NIS per component, at most ``gate2`` (its gate squared: a
-    sample its gate rejects counts as at the gate). Two runs of the same filter on the same
-    data compare by it: the smaller sum, the better its state has predicted the measurements,
-    as ArduPilot's EKF3 chooses between its lanes by their innovation test ratios (and a bank
-    of models by their likelihood, as PX4's yaw estimator)."""
+    to that sample, of each one's NIS, at most m ``gate2`` for m components (every component
+    at its gate, gate2 its gate squared); a sample its gate rejected counts that much. Two
+    runs of the same filter on the same data compare by it: half the difference of two sums is
+    the log-likelihood ratio of the two runs' innovations (their covariances alike), the
+    smaller sum the run that predicted the measurements better (ArduPilot's EKF3 chooses between
+    its lanes by their innovation test ratios, PX4's yaw estimator weights its bank by the
+    likelihood)."""
     inn = est.innovations.get(sensor)
     if inn is None or len(inn.t) == 0:
         return np.zeros(len(est.t))
-    m = max(inn.dim, 1)
-    per = np.minimum(np.asarray(inn.nis, dtype=np.float64) / m, gate2)
-    per = np.where(np.isfinite(per) & (inn.t >= since), per, 0.0)
+    cap = max(inn.dim, 1) * gate2
+    nis = np.asarray(inn.nis, dtype=np.float64)
+    per = np.where(np.asarray(inn.accepted, dtype=bool), np.minimum(nis, cap), cap)
+    per = np.where(np.isfinite(nis) & (inn.t >= since), per, 0.0)
     total = np.r_[0.0, np.cumsum(per)]
     return total[np.searchsorted(inn.t, est.t, side="right")]
+
+
+def lane_choice(
+    score_a: F64, score_b: F64, start_b: bool = False, bound: float = LANE_SWITCH_LLR
+) -> NDArray[np.bool_]:
+    """(N,) per sample: whether the output is on run b, given the two runs' :func:`lane_scores`.
+    It starts on b when ``start_b``, else on a; it moves to b once the log-likelihood ratio
+    ``(score_a - score_b) / 2`` exceeds ``bound``, and to a once it falls below ``-bound`` (a
+    sequential test: between the bounds it stays where it was)."""
+    llr = 0.5 * (np.asarray(score_a, dtype=np.float64) - np.asarray(score_b, dtype=np.float64))
+    event = np.where(llr > bound, 1, np.where(llr < -bound, -1, 0))
+    last = np.where(event != 0, np.arange(len(event)), -1)
+    np.maximum.accumulate(last, out=last)
+    return np.where(last >= 0, event[np.clip(last, 0, None)], 1 if start_b else -1) == 1
 
 
 def _about_vertical(q_nb: F64, psi: float) -> F64:
@@ -585,9 +627,10 @@ def _about_vertical(q_nb: F64, psi: float) -> F64:
 
 
 def _lanes(a: Estimate, b: Estimate, use_b: NDArray[np.bool_]) -> Estimate:
-    """Two runs of the same estimator as one: ``b``'s samples where ``use_b`` (N,), ``a``'s
-    elsewhere; the states, the covariance's rows, and the innovations and resets logged while
-    each was the one taken. The alerts are ``a``'s: check the result again."""
+    """Two runs of the same estimator on the same flight as one: ``b``'s samples where
+    ``use_b`` (N,), ``a``'s elsewhere; the states, the covariance's rows, and the innovations
+    and resets logged while each was the one taken. The rest (alerts, airspeed scale, start,
+    parameters, meta) is ``a``'s: check the result again."""
     def pick(x: F64 | None, y: F64 | None) -> F64 | None:
         if x is None or y is None:
             return x
@@ -600,10 +643,14 @@ def _lanes(a: Estimate, b: Estimate, use_b: NDArray[np.bool_]) -> Estimate:
     cov = a.cov
     if a.cov is not None and b.cov is not None and a.cov.shape == b.cov.shape:
         cov = np.where(use_b[a.cov_rows][:, None, None], b.cov, a.cov)
-    inns = dict(a.innovations)
-    for key, ia in a.innovations.items():
-        ib = b.innovations.get(key)
-        if ib is None:
+    inns = {}
+    for key in a.innovations.keys() | b.innovations.keys():
+        ia, ib = a.innovations.get(key), b.innovations.get(key)
+        if ia is None or ib is None:  # (a log one run kept: its own rows, where it is taken)
+            one = ia if ia is not None else ib
+            assert one is not None
+            keep = ~taken(one.t) if ia is not None else taken(one.t)
+            inns[key] = Innovations(t=one.t[keep], nu=one.nu[keep], nis=one.nis[keep], accepted=one.accepted[keep])
             continue
         ka, kb = ~taken(ia.t), taken(ib.t)
         order = np.argsort(np.r_[ia.t[ka], ib.t[kb]], kind="stable")
