@@ -643,12 +643,14 @@ def _lanes(a: Estimate, b: Estimate, use_b: NDArray[np.bool_]) -> Estimate:
     cov = a.cov
     if a.cov is not None and b.cov is not None and a.cov.shape == b.cov.shape:
         cov = np.where(use_b[a.cov_rows][:, None, None], b.cov, a.cov)
+    def keys(x: dict[str, Any], y: dict[str, Any]) -> list[str]:  # (a's order, then b's own: deterministic)
+        return [*x, *(k for k in y if k not in x)]
+
     inns = {}
-    for key in a.innovations.keys() | b.innovations.keys():
+    for key in keys(a.innovations, b.innovations):
         ia, ib = a.innovations.get(key), b.innovations.get(key)
         if ia is None or ib is None:  # (a log one run kept: its own rows, where it is taken)
-            one = ia if ia is not None else ib
-            assert one is not None
+            one: Innovations = ia if ia is not None else b.innovations[key]
             keep = ~taken(one.t) if ia is not None else taken(one.t)
             inns[key] = Innovations(t=one.t[keep], nu=one.nu[keep], nis=one.nis[keep], accepted=one.accepted[keep])
             continue
@@ -658,7 +660,7 @@ def _lanes(a: Estimate, b: Estimate, use_b: NDArray[np.bool_]) -> Estimate:
                                 nis=np.r_[ia.nis[ka], ib.nis[kb]][order],
                                 accepted=np.r_[ia.accepted[ka], ib.accepted[kb]][order])
     resets = {}
-    for key in set(a.resets) | set(b.resets):
+    for key in keys(a.resets, b.resets):
         ra = a.resets.get(key, np.empty((0, 3)))
         rb = b.resets.get(key, np.empty((0, 3)))
         rows = np.vstack([ra[~taken(ra[:, 0])], rb[taken(rb[:, 0])]])
