@@ -158,7 +158,7 @@ from windahrs.filters.checks import checked
 from windahrs.filters.eskf import InsWind, Mekf
 from windahrs.filters.params import EskfParams, changes_from_mapping, read_param_file
 from windahrs.flight import Flight, Site
-from windahrs.rotation import euler_from_quat, quat_mul, quat_rotate, quat_rotate_inv
+from windahrs.rotation import euler_from_quat, quat_exp, quat_mul, quat_rotate, quat_rotate_inv
 
 __all__ = [
     "Auto", "AutoChoice", "GnssHeading", "aligned_index", "describe_choice", "gate_closed", "gnss_heading",
@@ -421,9 +421,9 @@ class Auto(Estimator):
                 matched = {"auto_heading_matched_s": round(t_al - float(flight.imu.t[0]), 3),
                            "auto_matched_share": round(float(use_b.mean()), 3)}
         early = ~use_b & (np.arange(n) < (n if k is None else k))  # (the matched INS: from its start)
+        sig = f"{math.degrees(HANDOVER_HEADING_SIGMA):g} deg (1 sigma)"
         if early.all():
-            why = (f"; the INS beside it never knew its heading to {math.degrees(HANDOVER_HEADING_SIGMA):g} deg "
-                   "(1 sigma)")
+            why = f"; the INS beside it never knew its heading to {sig}"
             if matched:
                 why += ", nor did its run from the heading GNSS velocity matched outweigh it"
             return before, caught, dataclasses.replace(choice, reason=choice.reason + why)
@@ -432,7 +432,6 @@ class Auto(Estimator):
         take = early | closed
         est, held = _spliced(before, lane, take, flight)
         dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
-        sig = f"{math.degrees(HANDOVER_HEADING_SIGMA):g} deg (1 sigma)"
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
                   f"{t_h:.2f} s, the INS after (once it knew its heading to {sig}), but for its tilt while its "
                   "GNSS gate is closed")
@@ -620,10 +619,12 @@ def lane_choice(
     return np.where(last >= 0, event[np.clip(last, 0, None)], 1 if start_b else -1) == 1
 
 
-def _about_vertical(q_nb: F64, psi: float) -> F64:
-    """q_nb turned by psi rad about the nav vertical."""
-    q = quat_mul(np.array([math.cos(0.5 * psi), 0.0, 0.0, math.sin(0.5 * psi)]), q_nb)
-    return np.asarray(q / np.linalg.norm(q), dtype=np.float64)
+def _about_vertical(q_nb: F64, psi: F64 | float) -> F64:
+    """q_nb (..., 4) turned by psi (...) rad about the nav vertical, normalised."""
+    psi = np.asarray(psi, dtype=np.float64)
+    zero = np.zeros_like(psi)
+    q = quat_mul(quat_exp(np.stack([zero, zero, psi], axis=-1)), q_nb)
+    return np.asarray(q / np.linalg.norm(q, axis=-1, keepdims=True), dtype=np.float64)
 
 
 def _lanes(a: Estimate, b: Estimate, use_b: NDArray[np.bool_]) -> Estimate:
@@ -711,11 +712,10 @@ def splice(before: Estimate, after: Estimate, take: NDArray[np.bool_]) -> Estima
     v_b) d d^T``, v the variance along d = C_bn e_3). The alerts are dropped: check the
     result again (:func:`~windahrs.filters.checks.checked`)."""
     idx = np.flatnonzero(take)
-    half = 0.5 * (euler_from_quat(after.q_nb[idx])[:, 2] - euler_from_quat(before.q_nb[idx])[:, 2])
-    turn = np.stack([np.cos(half), np.zeros(len(idx)), np.zeros(len(idx)), np.sin(half)], axis=1)
     q = after.q_nb.copy()
-    turned = quat_mul(turn, before.q_nb[idx])
-    q[idx] = turned / np.linalg.norm(turned, axis=1, keepdims=True)
+    q[idx] = _about_vertical(
+        before.q_nb[idx], euler_from_quat(after.q_nb[idx])[:, 2] - euler_from_quat(before.q_nb[idx])[:, 2]
+    )
     bg = None
     if after.gyro_bias_b is not None:
         bg = after.gyro_bias_b.copy()
