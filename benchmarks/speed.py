@@ -8,9 +8,11 @@ Each estimator runs once to warm up (JIT compilation or a load from numba's cach
 time is printed separately), then up to ``--repeat`` timed runs, stopping early once
 ``--budget`` seconds are spent (at least one timed run); the best is reported. A run is
 ``time.perf_counter`` around ``Estimator.run`` on the whole flight: event merging, the
-filter, recording every state and covariance, and building the Estimate. For the filters on
-the error-state core the table also shows the kernel alone with and without recording,
-i.e. what writing the (N, n, n) covariance and the states costs. Estimators whose package is missing are
+filter, recording every state and the covariance (at its default rate, 20 Hz:
+``windahrs.core.layout.COV_RECORD_HZ``), and building the Estimate. For the filters on the
+error-state core the table also shows the kernel alone with and without recording, i.e.
+what writing the states and covariance costs, and what recording every sample's covariance
+(``cov_every=1``) would. Estimators whose package is missing are
 skipped with a note. ``--cold-jit`` compiles from scratch (a fresh numba cache) to show
 the true compile time. The JSON output is a list of {"name", "us_per_sample", "ratio_to_vqf_core"}.
 
@@ -64,26 +66,28 @@ def timed_runs(
     return first, times, ref_times
 
 
-def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float]:
-    """Best time (s) of the error-state core's loop alone, with and without recording: the
-    loop of :meth:`Estimator.run` on what its ``prepare`` hands it (the outputs from
-    ``core.pool``, their pages already mapped after the first run, as in ``run``)."""
+def kernel_times(est: Any, flight: Any, repeat: int) -> tuple[float, float, float]:
+    """Best time (s) of the error-state core's loop alone: recording as ``run`` does (the
+    covariance at its default 20 Hz), recording every sample's covariance (``cov_every=1``),
+    and without recording: the loop of :meth:`Estimator.run` on what its ``prepare`` hands
+    it (the outputs from ``core.pool``, their pages already mapped after the first run, as in
+    ``run``)."""
     import numpy as np
 
     from windahrs.core import kernel as K
     from windahrs.core.smooth import no_smoothing
 
-    out = {}
-    for rec in (True, False):
+    out = []
+    for rec, every in ((True, None), (True, 1), (False, None)):
         best = np.inf
         for _ in range(repeat + 1):
-            r = est.prepare(flight)
+            r = est.prepare(flight, cov_every=every)
             t0 = time.perf_counter()
             K.run_events(r.st, r.t_ev, r.kinds, r.vals, r.q, r.bg, r.v, r.w, r.cov, rec, no_smoothing())
             best = min(best, time.perf_counter() - t0)
             del r
-        out[rec] = best
-    return out[True], out[False]
+        out.append(best)
+    return out[0], out[1], out[2]
 
 
 def vqf_core(flight: Any) -> Callable[[], None] | None:
@@ -180,10 +184,11 @@ def main() -> None:
             continue
         measure(name, est, REGISTRY[name.split(":")[0]][2])
         if isinstance(est, CompiledEstimator):
-            with_rec, without = kernel_times(est, flight, args.repeat)
+            with_rec, every, without = (s / n * 1e6 for s in kernel_times(est, flight, args.repeat))
             print(
-                f"{'':24s} kernel alone {with_rec / n * 1e6:.3f} us/sample, without recording states and "
-                f"covariance {without / n * 1e6:.3f} (recording {(with_rec - without) / n * 1e6:.3f})"
+                f"{'':24s} kernel alone {with_rec:.3f} us/sample, without recording states and covariance "
+                f"{without:.3f} (recording {with_rec - without:.3f}; every sample's covariance "
+                f"{every - without:.3f})"
             )
 
     if vqf_us is not None:

@@ -70,7 +70,7 @@ def test_streaming_equals_batch_with_the_scale() -> None:
     t_ev, kinds, vals = merge_events(f, has)
     streamer = est.streamer(f.site, has=has)
     streamed = replay(est, streamer, f, t_ev, kinds, vals)
-    batch = est.run(f)
+    batch = est.run(f, cov_every=1)  # (the streamer records every sample's covariance)
     for name in ("q_nb", "v_n", "wind_n", "cov"):
         np.testing.assert_array_equal(getattr(streamed, name), getattr(batch, name), err_msg=name)
     st = streamer._st  # type: ignore[attr-defined]

@@ -49,12 +49,12 @@ def test_runs_from_reused_memory_equal_the_first() -> None:
     # list is last in, first out), which made this test depend on the tests run before it
     gc.collect()
     pool._free.clear()
-    first = est.run(flight)
+    first = est.run(flight, cov_every=1)  # (every sample's covariance: a block the pool keeps)
     q, cov = first.q_nb.copy(), first.cov.copy() if first.cov is not None else None
     addr = _addr(first.cov) if first.cov is not None else 0
     del first
     gc.collect()
-    again = est.run(flight)
+    again = est.run(flight, cov_every=1)
     assert _addr(again.cov) == addr  # the same memory, reused
     np.testing.assert_array_equal(again.q_nb, q)
     np.testing.assert_array_equal(again.cov, cov)

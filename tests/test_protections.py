@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import windahrs as wa
-from windahrs.core.layout import COV_BUDGET, cov_stride
+from windahrs.core.layout import COV_BUDGET, COV_RECORD_HZ, cov_stride
 from windahrs.estimate import Estimate, load_estimate, save_estimate
 from windahrs.flags import FLAGS, flag_names, flag_spans, stream_flags
 from windahrs.flight import Flight, ImuStream
@@ -20,10 +20,11 @@ from windahrs.rotation import quat_conj, quat_mul
 from windahrs.sim import faults as F
 
 
-def _quiet_run(spec: str, flight: Flight, **kw: object) -> Estimate:
+def _quiet_run(spec: str, flight: Flight, cov_every: int | None = None, **kw: object) -> Estimate:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return wa.estimator(spec, **kw).run(flight)  # type: ignore[arg-type]
+        est = wa.estimator(spec, **kw)  # type: ignore[arg-type]
+        return est.run(flight) if cov_every is None else est.run(flight, cov_every=cov_every)  # type: ignore[call-arg]
 
 
 def _with_imu(flight: Flight, w: np.ndarray, f: np.ndarray) -> Flight:
@@ -98,7 +99,7 @@ def test_a_step_of_the_motion_is_propagated_one_sample_late_not_lost(fixedwing: 
 def test_late_magnetometer_start_without_it_then_turn_to_it() -> None:
     flight = wa.simulate("quadrotor", seed=4, wind=5.0, duration=25.0, faults=[F.MagAbsent(start=0.0, duration=10.0)])
     assert flight.mag is not None and flight.mag.t[0] >= 10.0
-    est = _quiet_run("mekf", flight)
+    est = _quiet_run("mekf", flight, cov_every=1)  # (every sample's covariance: read row by row below)
     assert est.cov is not None
     k_init = est.first_initialised
     assert est.init_index == k_init
@@ -220,12 +221,29 @@ def test_flag_names_and_spans() -> None:
     assert [(s.flag, s.t0, s.t1) for s in spans] == [("reset", 0.2, pytest.approx(0.4)), ("imu_held", 0.4, 0.4)]
 
 
-def test_the_covariance_is_kept_within_its_budget(fixedwing: Flight, tmp_path: object) -> None:
+def test_the_covariance_is_kept_at_20_hz_within_its_budget(fixedwing: Flight, tmp_path: object) -> None:
     n, d = len(fixedwing.imu.t), 18
     assert cov_stride(n, d) == 1 and cov_stride(10 * COV_BUDGET, 4) == 160
+    # by default at COV_RECORD_HZ (20 Hz): every 10th of 200 Hz, every one of a 10 Hz stream
+    assert COV_RECORD_HZ == 20.0
+    assert cov_stride(n, d, rate_hz=200.0) == 10 and cov_stride(n, d, rate_hz=10.0) == 1
+    assert cov_stride(n, d, rate_hz=39.9) == 1 and cov_stride(10 * COV_BUDGET, 4, rate_hz=200.0) == 160
+    assert cov_stride(n, d, 3, rate_hz=200.0) == 3  # (asked for: as asked)
+    # "budget": every sample's within the budget, else the finest stride within it that the
+    # default's divides (auto's runs, thinned to the default afterwards)
+    assert cov_stride(n, d, "budget", rate_hz=200.0) == 1
+    long = 3 * COV_BUDGET // (d * d)  # (3 x the budget's samples: every 3rd within it; default 10)
+    assert cov_stride(long, d, rate_hz=200.0) == 10 and cov_stride(long, d, "budget", rate_hz=200.0) == 5
+    with pytest.raises(ValueError, match="cov_every"):
+        cov_stride(n, d, "every")
     with pytest.raises(ValueError, match="cov_every"):
         cov_stride(n, d, 0)
-    full = _quiet_run("ins-wind", fixedwing)
+    full = _quiet_run("ins-wind", fixedwing, cov_every=1)
+    default = _quiet_run("ins-wind", fixedwing)
+    rate = (n - 1) / (fixedwing.imu.t[-1] - fixedwing.imu.t[0])
+    every = int(rate // COV_RECORD_HZ)
+    assert every > 1 and default.cov is not None and full.cov is not None
+    assert np.array_equal(default.cov, full.cov[::every]) and np.array_equal(default.q_nb, full.q_nb)
     thin = wa.estimator("ins-wind").run(fixedwing, cov_every=7)
     assert full.cov is not None and thin.cov is not None and thin.cov_index is not None
     assert np.array_equal(thin.q_nb, full.q_nb)

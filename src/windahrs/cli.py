@@ -722,8 +722,9 @@ def _score_line(sc: Score) -> str:
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
+    from windahrs.core.kernel import CompiledEstimator
     from windahrs.estimate import save_estimate
-    from windahrs.filters.auto import describe_choice
+    from windahrs.filters.auto import Auto, describe_choice
     from windahrs.filters.registry import make_estimator
     from windahrs.metrics import reference_of, score
     from windahrs.windfit import describe_wind_fit
@@ -740,8 +741,13 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             est = est if isinstance(est, Smoothed) else Smoothed(est)
         except ValueError as exc:
             raise UsageError(f"--smooth: {exc}") from None
+    if args.cov_every is not None and not isinstance(est, CompiledEstimator | Auto):
+        raise UsageError(
+            f"--cov-every: {args.filter} records every sample's covariance (only the compiled core's filters "
+            "take a stride: auto, mekf, mekf-air, ins-wind, ins-drag, ekf7, ekf10)"
+        )
     flight = _read(args.file, declination=args.declination)
-    result = est.run(flight)
+    result = est.run(flight) if args.cov_every is None else est.run(flight, cov_every=args.cov_every)  # type: ignore[call-arg]
     chose = describe_choice(result)
     if chose is not None:
         print(chose)
@@ -1084,6 +1090,11 @@ def _parser() -> argparse.ArgumentParser:
         help="parameters: [windahrs] fields, or [px4] / [ardupilot] parameter names",
     )
     e.add_argument("--out", type=_file_path, default=None, metavar="EST.h5", help="write the Estimate here")
+    e.add_argument(
+        "--cov-every", type=_count, default=None, metavar="K",
+        help="record the covariance at every K-th IMU sample (1: every sample; default: at 20 Hz within 128 MiB; "
+        "the compiled core's filters, docs/core.md 'The covariance record')",
+    )
     e.add_argument("--smooth", action="store_true", help=SMOOTH_HELP_ONE)
     _declination_option(e, DECLINATION_HELP)
     e.set_defaults(func=_cmd_estimate)

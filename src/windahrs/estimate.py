@@ -138,8 +138,9 @@ class Estimate:
     rad/s or None; v_n (N, 3) m/s or None; wind_n (N, 3) m/s (velocity of the air) or
     None; cov (N, n, n) error-state covariance with ``state_labels`` (n,) naming each
     dimension (attitude errors are body-frame rotation vectors, rad) or None; cov_index:
-    None (a covariance at every sample), or the (M,) sample indices of cov's M rows (a long
-    record keeps every k-th, :data:`windahrs.core.layout.COV_BUDGET`);
+    None (a covariance at every sample), or the (M,) sample indices of cov's M rows (the
+    compiled core's filters keep every k-th by default, at 20 Hz and within a budget:
+    :data:`windahrs.core.layout.COV_RECORD_HZ`, :data:`~windahrs.core.layout.COV_BUDGET`);
     innovations per sensor; skipped: NaN samples skipped per stream; params: text of the
     parameters used; meta: free-form. resets: per sensor (its innovation key), the resets
     of the state to it after its gate had kept it out for the filter's ``reset_timeout``,

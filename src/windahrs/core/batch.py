@@ -195,7 +195,7 @@ def run_batch(
     initial: Sequence[InitialState | None] | None = None,
     threads: int | None = None,
     cov: CovRecord = "full",
-    cov_every: int | None = None,
+    cov_every: int | str | None = None,
 ) -> list[Estimate]:
     """The Estimates of ``est`` on ``flights`` (in their order), the runs advancing together
     in one compiled call on ``threads`` threads: the same Estimates as ``[est.run(f,
@@ -204,7 +204,7 @@ def run_batch(
     threads: runs at once, 1 to NUMBA_NUM_THREADS (default: numba's current count); cov:
     the covariance recorded, "full" (as ``run``), "attitude" (the 3 x 3 attitude block, with
     its labels) or "none" (:data:`~windahrs.filters.base.CovRecord`), at every cov_every-th
-    IMU sample (default: as ``run``, every sample within
+    IMU sample (default: as ``run``, at :data:`~windahrs.core.layout.COV_RECORD_HZ` within
     :data:`~windahrs.core.layout.COV_BUDGET` per flight).
 
     The preparation (merging each flight's events, encoding its state) and the Estimates'

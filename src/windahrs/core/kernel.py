@@ -135,6 +135,7 @@ from windahrs.core.layout import (
     X_WLAST,
     KernelState,
     cov_stride,
+    mean_rate,
 )
 from windahrs.core.pool import stream_fence, stream_store3
 from windahrs.core.predict import (
@@ -994,12 +995,15 @@ class CompiledEstimator(Estimator):
         return frozenset(name for part in cls.parts for name in part)
 
     def run(
-        self, flight: Flight, *, initial: InitialState | None = None, cov_every: int | None = None
+        self, flight: Flight, *, initial: InitialState | None = None, cov_every: int | str | None = None
     ) -> Estimate:
         """Estimate the whole flight in one compiled loop (with the parameters the flight
         itself declares, :func:`~windahrs.filters.params.flight_params`); the covariance at
-        every cov_every-th IMU sample (default: every sample up to
-        :data:`~windahrs.core.layout.COV_BUDGET`, :func:`~windahrs.core.layout.cov_stride`)."""
+        every cov_every-th IMU sample (default: at :data:`~windahrs.core.layout.COV_RECORD_HZ`,
+        20 Hz, within :data:`~windahrs.core.layout.COV_BUDGET`,
+        :func:`~windahrs.core.layout.cov_stride`; 1: every sample; "budget": every
+        sample within the budget, for a caller that reads the covariance sample by sample,
+        as [auto]'s handover)."""
         run = self.prepare(flight, initial, cov_every=cov_every)
         run_events(run.st, run.t_ev, run.kinds, run.vals, run.q, run.bg, run.v, run.w, run.cov, True, no_smoothing())
         return self.finish(run)
@@ -1011,7 +1015,7 @@ class CompiledEstimator(Estimator):
         initial: Sequence[InitialState | None] | None = None,
         threads: int | None = None,
         cov: CovRecord = "full",
-        cov_every: int | None = None,
+        cov_every: int | str | None = None,
     ) -> list[Estimate]:
         """Estimate several flights in one compiled call, the runs advancing in parallel
         (:func:`windahrs.core.batch.run_batch`): the same Estimates as ``[self.run(f,
@@ -1029,7 +1033,7 @@ class CompiledEstimator(Estimator):
         flight: Flight,
         initial: InitialState | None = None,
         cov: CovRecord = "full",
-        cov_every: int | None = None,
+        cov_every: int | str | None = None,
         *,
         reuse: bool = True,
     ) -> PreparedRun:
@@ -1057,7 +1061,7 @@ class CompiledEstimator(Estimator):
         q, bg = new((N, 4)), new((N, 3))
         v = new((N, 3)) if L.has("v") else np.empty((0, 3))
         w = new((N, 3)) if L.has("wind") else np.empty((0, 3))
-        every = cov_stride(N, d, cov_every)
+        every = cov_stride(N, d, cov_every, mean_rate(flight.imu.t))
         st.cfg["cov_every"] = every
         P = new((-(-N // every), d, d))
         return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)

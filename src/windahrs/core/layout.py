@@ -41,10 +41,19 @@ _JIT_CORE: dict[str, Any] = {**_JIT, "_nrt": False}
 #: products and sums.
 _JIT_FMA: dict[str, Any] = {**_JIT_CORE, "fastmath": {"contract"}}
 
+#: The rate a run records the covariance at by default, Hz: every k-th IMU sample's, k the
+#: IMU's rate over this (:func:`cov_stride`). The covariance changes on the time scale of the
+#: aiding (0.1 to 1 s: a GNSS receiver's 5-10 Hz velocity, the attitude's convergence), not
+#: the IMU's, and 20 Hz samples the fastest of it twice (PX4's logger keeps EKF2's
+#: ``estimator_status``, with the covariance's diagonal, at 5 Hz). Writing the whole record
+#: is memory-bound: [ins-wind]'s 18 x 18 at every 200 Hz sample is 31 MB a minute, which
+#: took 0.08-0.33 us a sample (the same code on two days of this shared machine; the filter
+#: itself about 0.55), and at 20 Hz a tenth of it. ``run(flight, cov_every=1)`` keeps every
+#: sample's.
+COV_RECORD_HZ = 20.0
+
 #: The covariances a run records at most, in floats (128 MiB): a longer record keeps every
-#: k-th IMU sample's (:func:`cov_stride`). The covariance changes on the time scale of the
-#: aiding (0.1 to 1 s), not the IMU's; a 20-min 200 Hz flight through [ins-wind] (18 states)
-#: keeps it at 40 Hz, an hour at 14 Hz, while every simulated experiment keeps every sample.
+#: k-th IMU sample's (:func:`cov_stride`): at 20 Hz, 18 states for 5 hours.
 COV_BUDGET = 1 << 24
 
 #: Width of the scratch rows: the largest covariance (ins-wind with accelerometer and
@@ -387,14 +396,31 @@ W_IMU = 66  # the IMU sample propagated in place of a held one: w_b (3), f_b (3)
 N_WORK = 67
 
 
-def cov_stride(n: int, d: int, every: int | None = None) -> int:
-    """The stride of the recorded covariance for n IMU samples of a d-state filter: the
-    given one, or the smallest that keeps n d^2 / stride within :data:`COV_BUDGET`."""
+def mean_rate(t: NDArray[np.float64]) -> float | None:
+    """The mean rate of the samples at times t (s), Hz; None for fewer than two or no span."""
+    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    return (len(t) - 1) / span if span > 0 else None
+
+
+def cov_stride(n: int, d: int, every: int | str | None = None, rate_hz: float | None = None) -> int:
+    """The stride of the recorded covariance for n IMU samples at ``rate_hz`` of a d-state
+    filter: the given one; for None the largest that keeps it at :data:`COV_RECORD_HZ` or
+    faster (1 without a rate or below it), at least the smallest that keeps n d^2 / stride
+    within :data:`COV_BUDGET`; for "budget" the smallest within the budget that divides that
+    default (every sample's within the budget: 1 up to 128 MiB), so that the default's rows
+    are among its rows."""
+    budget = max(1, -(-n * d * d // COV_BUDGET))
+    if isinstance(every, str) and every == "budget":
+        default = cov_stride(n, d, None, rate_hz)
+        return min(s for s in range(budget, default + 1) if default % s == 0)
     if every is not None:
         if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
-            raise ValueError(f"cov_every: expected an integer >= 1 (1: every sample), found {every!r}")
+            raise ValueError(
+                f"cov_every: expected an integer >= 1 (1: every sample) or 'budget', found {every!r}"
+            )
         return int(every)
-    return max(1, -(-n * d * d // COV_BUDGET))
+    by_rate = int(rate_hz // COV_RECORD_HZ) if rate_hz is not None and np.isfinite(rate_hz) else 1
+    return max(by_rate, budget)
 
 
 class KernelState(NamedTuple):

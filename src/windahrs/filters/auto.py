@@ -152,6 +152,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.core.kernel import CompiledEstimator, CompiledStreamer
+from windahrs.core.layout import cov_stride, mean_rate
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import Estimator, InitialState
 from windahrs.filters.checks import checked
@@ -320,9 +321,18 @@ class Auto(Estimator):
         sensors = tuple(s for s in _ORDER if s in fused)
         return AutoChoice(name, est, spec, sensors, reason, ignored)
 
-    def run(self, flight: Flight, *, initial: InitialState | None = None, smooth: bool = False) -> Estimate:
+    def run(
+        self,
+        flight: Flight,
+        *,
+        initial: InitialState | None = None,
+        smooth: bool = False,
+        cov_every: int | None = None,
+    ) -> Estimate:
         """Choose from the flight's streams (:func:`usable_streams`) and run the choice;
         ``filter`` is auto's label and ``meta`` says what ran (:meth:`AutoChoice.meta`).
+        cov_every: the covariance at every cov_every-th IMU sample, as the compiled filters'
+        ``run`` (default 20 Hz; :func:`default_cov_record`).
 
         Fallback: when the INS fails the tilt check of :mod:`windahrs.filters.checks` (its
         attitude does not see the mean specific force, less the GNSS acceleration, as
@@ -371,6 +381,8 @@ class Auto(Estimator):
         for w in caught:
             text = str(w.message).replace(est.filter, f"{self.label} ({est.filter})", 1)
             warnings.warn(text, w.category, stacklevel=2)
+        if not smooth:  # (the runs kept every sample's covariance for the handover: the default's now)
+            est = default_cov_record(est, cov_every)
         return dataclasses.replace(est, filter=self.label, meta={**est.meta, **choice.meta()})
 
     def _handover(
@@ -496,6 +508,21 @@ def _spliced(
     return est, list(held)
 
 
+def default_cov_record(est: Estimate, cov_every: int | None = None) -> Estimate:
+    """``est`` with the covariance rows a compiled run records with ``cov_every``
+    (:func:`~windahrs.core.layout.cov_stride`; None: 20 Hz within the budget) kept of those
+    it has (a run with ``cov_every="budget"``, whose rows include the default's; a stride its
+    rows do not divide keeps the rows that are on both)."""
+    if est.cov is None:
+        return est
+    every = cov_stride(len(est.t), est.cov.shape[1], cov_every, mean_rate(est.t))
+    rows = est.cov_rows
+    keep = rows % every == 0
+    if keep.all():
+        return est
+    return dataclasses.replace(est, cov=np.ascontiguousarray(est.cov[keep]), cov_index=rows[keep])
+
+
 def _run_quietly(
     est: Estimator, flight: Flight, initial: InitialState | None, smooth: bool = False
 ) -> tuple[Estimate, list[warnings.WarningMessage]]:
@@ -506,6 +533,8 @@ def _run_quietly(
             from windahrs.core.smooth import smooth as smoothed
 
             out = smoothed(est, flight, initial=initial, label=est.label)
+        elif isinstance(est, CompiledEstimator):  # (every sample's covariance: the handover reads it so)
+            out = est.run(flight, initial=initial, cov_every="budget")
         else:
             out = est.run(flight, initial=initial)
     return out, list(caught)
