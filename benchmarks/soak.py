@@ -1,6 +1,7 @@
 """Soak: a long turbulent fixed-wing flight at 200 Hz with sensor faults sprinkled through it,
 through ins-wind, mekf and auto: NaN rows, whether the recorded covariance stayed symmetric
-positive definite at every recorded step (the default record: 20 Hz within 128 MiB), the error bound, and the peak memory per filter.
+positive definite at every recorded step (the default record: 20 Hz within 128 MiB), the
+error bound, and the peak memory per filter.
 
     python benchmarks/soak.py [--minutes 60] [--filters ins-wind,mekf,auto] [--wind 8] [--seed 0]
                               [--work DIR] [--out soak.json]
