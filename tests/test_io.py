@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import math
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -230,6 +231,39 @@ def test_alfa_streams_and_failure_time() -> None:
     assert mean_rate(f.imu.t) == pytest.approx(10.0, abs=0.2)
     speed = np.linalg.norm(f.ref_wind.wind_n, axis=1)
     assert 0.5 < speed.mean() < 15.0
+
+
+def test_alfa_topics_exported_without_a_sample_are_absent(tmp_path: Path) -> None:
+    """A topic file with a header and no row (the export of a topic that published nothing)
+    is an absent stream, said in a warning and in ``meta["absent_files"]``; an empty failure
+    flag is no failure; an IMU file without a row is still an error."""
+    d = tmp_path / "seq"
+    d.mkdir()
+    gyro = [f"field.angular_velocity.{c}" for c in "xyz"]
+    accel = [f"field.linear_acceleration.{c}" for c in "xyz"]
+    t0 = 1_531_000_000_000_000_000
+    rows = [f"{t0 + k * 10_000_000},0,0,0,0,0,9.80665" for k in range(200)]
+    (d / "mavros-imu-data_raw.csv").write_text("%time," + ",".join(gyro + accel) + "\n" + "\n".join(rows) + "\n")
+    (d / "mavros-imu-mag.csv").write_text("%time," + ",".join(f"field.magnetic_field.{c}" for c in "xyz") + "\n")
+    (d / "mavros-nav_info-airspeed.csv").write_text("%time,field.measured\n")
+    air = [f"{t0 + k * 100_000_000},15.0" for k in range(20)]
+    (d / "mavros-vfr_hud.csv").write_text("%time,field.airspeed\n" + "\n".join(air) + "\n")
+    (d / "failure_status-engines.csv").write_text("%time,field.data\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        f = read_alfa(d)
+    said = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
+    for name in ("mavros-imu-mag.csv", "mavros-nav_info-airspeed.csv"):
+        assert sum(f"{name}: no data rows; read as absent" in m for m in said) == 1, said
+    assert f.mag is None and f.air is not None and f.meta["air.file"] == "mavros-vfr_hud.csv"
+    assert f.meta["absent_files"] == (
+        "mavros-imu-mag.csv: no data rows; mavros-nav_info-airspeed.csv: no data rows"
+    )
+    assert "failure_time" not in f.meta
+    assert not any("failure_status" in m for m in said)
+    (d / "mavros-imu-data_raw.csv").write_text("%time," + ",".join(gyro + accel) + "\n")
+    with pytest.raises(LogFormatError, match="mavros-imu-data_raw.csv: no data rows"):
+        read_alfa(d)
 
 
 def test_alfa_frames_against_physics() -> None:

@@ -114,6 +114,29 @@ class _Table:
     untimed_rows: int = 0  # rows dropped for an empty or non-finite time stamp
 
 
+class EmptyTableError(LogFormatError):
+    """A CSV file that holds no sample: empty, a header alone, or no row with a time stamp."""
+
+
+def _read_optional(
+    path: Path, time_col: str, columns: Sequence[str], absent: dict[str, str] | None
+) -> _Table | None:
+    """:func:`_read_table` of a topic a recording may lack: None when the file is missing,
+    or holds no sample (an exported topic that published nothing), the reason then in
+    ``absent`` under the file's name and said in a UserWarning (``absent`` None: neither,
+    for a topic whose silence is its message, as a failure flag's); any other problem
+    raises."""
+    if not path.is_file():
+        return None
+    try:
+        return _read_table(path, time_col, columns)
+    except EmptyTableError as exc:
+        if absent is not None:
+            absent[path.name] = exc.problem
+            warnings.warn(f"{path}: {exc.problem}; read as absent", UserWarning, stacklevel=3)
+        return None
+
+
 def _read_table(
     path: Path, time_col: str, columns: Sequence[str], *, warn_stripped: bool = True
 ) -> _Table:
@@ -159,7 +182,7 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise LogFormatError(path, f"not a readable CSV file: {exc}") from None
     if not lines:
-        raise LogFormatError(path, "empty file (expected a header row)")
+        raise EmptyTableError(path, "empty file (expected a header row)")
     header = [h.strip() for h in lines[0][1]]
     wanted = [time_col, *columns]
     stripped = _stripped(lines[0][1], wanted)
@@ -173,7 +196,7 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
     if rows and len(rows[-1][1]) < len(header):
         rows, dropped = rows[:-1], True
     if not rows:
-        raise LogFormatError(path, "no data rows")
+        raise EmptyTableError(path, "no data rows")
     cells: list[list[str]] = [[] for _ in wanted]
     for lineno, row in rows:
         if len(row) != len(header):
@@ -189,7 +212,7 @@ def _read_table_rows(path: Path, time_col: str, columns: Sequence[str]) -> _Tabl
         cells = [[col[k] for k in timed] for col in cells]
         linenos = [linenos[k] for k in timed]
     if not linenos:
-        raise LogFormatError(path, f"no data rows with a time stamp in column {time_col!r}")
+        raise EmptyTableError(path, f"no data rows with a time stamp in column {time_col!r}")
     time = _parse_time(path, time_col, cells[0], linenos)
     values = {
         c: _parse_floats(path, c, v, linenos) for c, v in zip(columns, cells[1:], strict=True)
@@ -366,8 +389,11 @@ def read_alfa(
     declination, about -9.5 deg here); the flight has no ``site.mag_n``.
 
     Time: ``%time`` (ROS receive time, ns) minus the earliest ``%time`` of the files read
-    (``meta["start_time_ns"]``). Raises LogFormatError (no such directory, missing IMU file
-    or column, malformed CSV) and FlightError (values failing validation).
+    (``meta["start_time_ns"]``). Every topic but the IMU's may be missing, or exported with
+    no sample (a header alone): read as absent, with a UserWarning and
+    ``meta["absent_files"]`` (an empty ``failure_status-*.csv``: no failure, silently).
+    Raises LogFormatError (no such directory, missing IMU file or column, an IMU file
+    without a sample, malformed CSV) and FlightError (values failing validation).
     """
     d = Path(dirpath)
     if not d.is_dir():
@@ -383,19 +409,23 @@ def read_alfa(
         "reference": ("mavros-imu-data.csv", _ALFA_QUAT),
         "ref_wind": ("mavros-wind_estimation.csv", _ALFA_TWIST),
     }
+    absent: dict[str, str] = {}  # (topics exported without a sample: read as absent)
     for name, (fname, cols) in optional.items():
-        if (d / fname).is_file():
-            tables[name] = _read_table(d / fname, "%time", cols)
+        table = _read_optional(d / fname, "%time", cols, absent)
+        if table is not None:
+            tables[name] = table
     air_file = None
     for fname, col in (("mavros-nav_info-airspeed.csv", "field.measured"),
                        ("mavros-vfr_hud.csv", "field.airspeed")):
-        if (d / fname).is_file():
-            tables["air"] = _read_table(d / fname, "%time", [col])
+        table = _read_optional(d / fname, "%time", [col], absent)
+        if table is not None:
+            tables["air"] = table
             air_file = fname
             break
     failures = {
-        f.stem.removeprefix("failure_status-"): _read_table(f, "%time", [])
+        f.stem.removeprefix("failure_status-"): table
         for f in sorted(d.glob("failure_status-*.csv"))
+        if (table := _read_optional(f, "%time", [], None)) is not None  # (empty: no failure)
     }
     for name, table in tables.items():
         if table.time.dtype.kind != "i":
@@ -403,6 +433,8 @@ def read_alfa(
 
     origin = min(_first_ns(t, 1) for t in tables.values())
     meta: dict[str, Any] = {"source": d.name, "format": "alfa", "start_time_ns": origin}
+    if absent:
+        meta["absent_files"] = "; ".join(f"{k}: {v}" for k, v in sorted(absent.items()))
     for kind, table in failures.items():
         if len(table.time):
             meta[f"failure_time.{kind}"] = (int(table.time.min()) - origin) * 1e-9
