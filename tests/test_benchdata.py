@@ -246,6 +246,21 @@ def test_discover_flights_walks_any_folder(mixed: Path, tmp_path: Path) -> None:
         discover_flights(tmp_path)
 
 
+def test_a_folder_of_csv_files_no_reader_knows_is_listed_as_skipped(mixed: Path, tmp_path: Path) -> None:
+    """A directory of CSV files that is no recording and holds none (an export in a layout
+    the readers do not know) is said, not passed over; one without CSV files is passed over."""
+    (tmp_path / "exports" / "odd").mkdir(parents=True)
+    (tmp_path / "exports" / "odd" / "imu.csv").write_text("a,b\n1,2\n")
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "notes.txt").write_text("not a recording")
+    (tmp_path / "quad.h5").symlink_to(mixed / "sim" / "quad.h5")
+    found = discover_flights(tmp_path)
+    assert [p.name for p in found.flights] == ["quad.h5"]
+    assert [(Path(s.path).relative_to(tmp_path).as_posix(), s.reason.split(":")[0]) for s in found.skipped] == [
+        ("exports/odd", "unknown directory format")
+    ]
+
+
 def test_trial_names_are_stems_unless_they_repeat(tmp_path: Path) -> None:
     a, b = tmp_path / "Horizontal" / "path_1", tmp_path / "Vertical" / "path_1"
     assert trial_names([a, tmp_path / "x" / "t.hdf5"]) == ["path_1", "t"]

@@ -266,6 +266,35 @@ def test_alfa_topics_exported_without_a_sample_are_absent(tmp_path: Path) -> Non
         read_alfa(d)
 
 
+def test_alfa_files_named_as_the_dataset_publishes_them(tmp_path: Path) -> None:
+    """The published sequences prefix every topic file with the sequence's name
+    (``<seq>-mavros-imu-data_raw.csv``, ``<seq>-failure_status-engines.csv``): the same
+    Flight as the bare names give, and found by format detection."""
+    bare, named = tmp_path / "bare", tmp_path / "carbonZ_x_engine_failure"
+    bare.mkdir()
+    named.mkdir()
+    gyro = [f"field.angular_velocity.{c}" for c in "xyz"]
+    accel = [f"field.linear_acceleration.{c}" for c in "xyz"]
+    t0 = 1_531_000_000_000_000_000
+    files = {
+        "mavros-imu-data_raw.csv": "%time," + ",".join(gyro + accel) + "\n"
+        + "\n".join(f"{t0 + k * 10_000_000},0.01,0,0,0,0,9.80665" for k in range(200)) + "\n",
+        "mavros-vfr_hud.csv": "%time,field.airspeed\n"
+        + "\n".join(f"{t0 + k * 100_000_000},15.0" for k in range(20)) + "\n",
+        "failure_status-engines.csv": "%time,field.data\n" + f"{t0 + 1_500_000_000},1\n",
+    }
+    for name, text in files.items():
+        (bare / name).write_text(text)
+        (named / f"{named.name}-{name}").write_text(text)
+    (named / "other_seq-mavros-imu-data_raw.csv").write_text("not read: named after another sequence")
+    assert detect_format(named) == "alfa"
+    a, b = read_alfa(bare), read_alfa(named)
+    np.testing.assert_array_equal(a.imu.w_b, b.imu.w_b)
+    assert a.air is not None and b.air is not None and np.array_equal(a.air.tas, b.air.tas)
+    assert b.meta["failure_time"] == a.meta["failure_time"] == pytest.approx(1.5)
+    assert b.meta["failure_type"] == "engines" and b.meta["air.file"] == f"{named.name}-mavros-vfr_hud.csv"
+
+
 def test_alfa_frames_against_physics() -> None:
     f = read_alfa(require_data("alfa", ALFA_SEQ))
     assert f.reference is not None and f.mag is not None and f.gnss is not None

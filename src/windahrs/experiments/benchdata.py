@@ -347,7 +347,9 @@ def discover_flights(directory: str | os.PathLike[str]) -> Discovery:
 
     A file with a log extension (:data:`FLIGHT_SUFFIXES`) that is no known format is
     listed in ``skipped`` with the reason; other files are taken only when their first
-    bytes are a known format (ULog, DataFlash, HDF5 flight) and passed over otherwise.
+    bytes are a known format (ULog, DataFlash, HDF5 flight) and passed over otherwise. A
+    directory of CSV files that is no recording and holds none is listed in ``skipped``
+    with the reason (an export in a layout the readers do not know).
     ``directory`` may itself be one recording. Raises FileNotFoundError when it does not
     exist or holds nothing recognised.
     """
@@ -362,7 +364,8 @@ def discover_flights(directory: str | os.PathLike[str]) -> Discovery:
     skipped: list[Skipped] = []
     seen: set[Path] = set()
 
-    def walk(d: Path) -> None:
+    def walk(d: Path, why: str | None = None) -> None:
+        """Take the recordings under d; d itself is no recording (``why``: the reason)."""
         real = d.resolve()
         if real in seen:  # a symbolic link back up the tree
             return
@@ -372,14 +375,15 @@ def discover_flights(directory: str | os.PathLike[str]) -> Discovery:
         except OSError as exc:
             skipped.append(Skipped(str(d), f"cannot list the directory: {exc.strerror or exc}"))
             return
+        before = len(flights) + len(skipped)
         for p in entries:
             if p.name.startswith("."):
                 continue
             if p.is_dir():
                 try:
                     detect_format(p)
-                except LogFormatError:
-                    walk(p)
+                except LogFormatError as exc:
+                    walk(p, exc.problem)
                 else:
                     flights.append(p)
                 continue
@@ -393,6 +397,12 @@ def discover_flights(directory: str | os.PathLike[str]) -> Discovery:
                     skipped.append(Skipped(str(p), f"cannot read: {exc.strerror or exc}"))
             else:
                 flights.append(p)
+        # a directory of CSV files that is no recording and holds none: said, not passed
+        # over (an export whose layout the readers do not know would vanish from the table)
+        if why is not None and len(flights) + len(skipped) == before and any(
+            p.suffix.lower() == ".csv" for p in entries if not p.name.startswith(".")
+        ):
+            skipped.append(Skipped(str(d), why))
 
     try:
         detect_format(root)

@@ -44,7 +44,7 @@ from windahrs.flight import Flight
 from windahrs.io.ansfl import ANSFL_GT_FILE, is_ansfl_dir, read_ansfl
 from windahrs.io.asl import is_asl_dir, read_asl
 from windahrs.io.broad import broad_movement_mask, read_broad
-from windahrs.io.csv import ALFA_IMU_FILE, CSV_MANIFEST, read_alfa, read_csv_dir
+from windahrs.io.csv import ALFA_IMU_FILE, CSV_MANIFEST, alfa_prefix, read_alfa, read_csv_dir
 from windahrs.io.dataflash import read_dataflash
 from windahrs.io.edge import LogFormatError, TruncatedLogWarning
 from windahrs.io.ulog import read_ulog
@@ -118,7 +118,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
     if p.is_dir():
         if (p / CSV_MANIFEST).is_file():
             return "csv"
-        if (p / ALFA_IMU_FILE).is_file():
+        if alfa_prefix(p) is not None:
             return "alfa"
         if is_ansfl_dir(p):
             return "ansfl"
@@ -126,8 +126,8 @@ def detect_format(path: str | os.PathLike[str]) -> str:
             return "asl"
         raise LogFormatError(
             p, f"unknown directory format: expected {CSV_MANIFEST} (generic CSV), "
-            f"{ALFA_IMU_FILE} (ALFA mavros CSV), {ANSFL_GT_FILE} with IMU_<k>.csv (ANSFL) "
-            "or mav0/imu0/data.csv (ASL: EuRoC, TUM-VI)"
+            f"{ALFA_IMU_FILE} or <sequence>-{ALFA_IMU_FILE} (ALFA mavros CSV), {ANSFL_GT_FILE} with "
+            "IMU_<k>.csv (ANSFL) or mav0/imu0/data.csv (ASL: EuRoC, TUM-VI)"
         )
     if not p.is_file():
         raise LogFormatError(p, "no such file or directory")

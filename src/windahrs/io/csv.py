@@ -74,6 +74,7 @@ from windahrs.rotation import (
 
 __all__ = [
     "ALFA_IMU_FILE",
+    "alfa_prefix",
     "CSV_FORMAT",
     "CSV_MANIFEST",
     "MAVROS_MAG_TESLA_PER_UNIT",
@@ -83,7 +84,10 @@ __all__ = [
 
 F64 = NDArray[np.float64]
 
-#: The file that marks a directory as an ALFA (mavros CSV) sequence.
+#: The file that marks a directory as an ALFA (mavros CSV) sequence: this name, or the
+#: sequence's name and a dash before it, as the dataset publishes its files
+#: (``carbonZ_2018-07-18-15-53-31_1_engine_failure-mavros-imu-data_raw.csv``, castacks'
+#: alfa-dataset-tools; :func:`alfa_prefix`).
 ALFA_IMU_FILE = "mavros-imu-data_raw.csv"
 #: The manifest file of a generic CSV directory, and its ``format`` value.
 CSV_MANIFEST = "windahrs.toml"
@@ -342,6 +346,23 @@ _ALFA_TWIST = [f"field.twist.linear.{c}" for c in "xyz"]
 _ALFA_QUAT = [f"field.orientation.{c}" for c in "wxyz"]
 
 
+def alfa_prefix(d: Path) -> str | None:
+    """What precedes the topic names of the ALFA sequence in directory d: "" for bare names
+    (``mavros-imu-data_raw.csv``), the published ``<sequence>-`` otherwise (the one ending in
+    ``-mavros-imu-data_raw.csv``; with several, the one named after the directory); None
+    when d holds no ALFA IMU file."""
+    if (d / ALFA_IMU_FILE).is_file():
+        return ""
+    try:
+        found = sorted(p.name[: -len(ALFA_IMU_FILE)] for p in d.iterdir()
+                       if p.name.endswith("-" + ALFA_IMU_FILE) and p.is_file())
+    except OSError:
+        return None
+    if len(found) > 1 and f"{d.name}-" in found:
+        return f"{d.name}-"
+    return found[0] if found else None
+
+
 def read_alfa(
     dirpath: str | os.PathLike[str],
     *,
@@ -388,6 +409,9 @@ def read_alfa(
     sensor are rejected. The reference yaw is true heading (ArduPilot applies the
     declination, about -9.5 deg here); the flight has no ``site.mag_n``.
 
+    File names: as above, or each after the sequence's name and a dash, as the dataset
+    publishes them (``<sequence>-mavros-imu-data_raw.csv``: :func:`alfa_prefix`).
+
     Time: ``%time`` (ROS receive time, ns) minus the earliest ``%time`` of the files read
     (``meta["start_time_ns"]``). Every topic but the IMU's may be missing, or exported with
     no sample (a header alone): read as absent, with a UserWarning and
@@ -398,10 +422,11 @@ def read_alfa(
     d = Path(dirpath)
     if not d.is_dir():
         raise LogFormatError(d, "not a directory (an ALFA sequence is a directory of CSV files)")
-    if not (d / ALFA_IMU_FILE).is_file():
-        raise LogFormatError(d, f"not an ALFA sequence: no {ALFA_IMU_FILE}")
+    pre = alfa_prefix(d)
+    if pre is None:
+        raise LogFormatError(d, f"not an ALFA sequence: no {ALFA_IMU_FILE} (nor <sequence>-{ALFA_IMU_FILE})")
     tables: dict[str, _Table] = {
-        "imu": _read_table(d / ALFA_IMU_FILE, "%time", _ALFA_GYRO + _ALFA_ACCEL)
+        "imu": _read_table(d / (pre + ALFA_IMU_FILE), "%time", _ALFA_GYRO + _ALFA_ACCEL)
     }
     optional: dict[str, tuple[str, list[str]]] = {
         "mag": ("mavros-imu-mag.csv", _ALFA_MAG),
@@ -411,23 +436,24 @@ def read_alfa(
     }
     absent: dict[str, str] = {}  # (topics exported without a sample: read as absent)
     for name, (fname, cols) in optional.items():
-        table = _read_optional(d / fname, "%time", cols, absent)
+        table = _read_optional(d / (pre + fname), "%time", cols, absent)
         if table is not None:
             tables[name] = table
     air_file = None
     for fname, col in (("mavros-nav_info-airspeed.csv", "field.measured"),
                        ("mavros-vfr_hud.csv", "field.airspeed")):
-        table = _read_optional(d / fname, "%time", [col], absent)
+        table = _read_optional(d / (pre + fname), "%time", [col], absent)
         if table is not None:
             tables["air"] = table
-            air_file = fname
+            air_file = pre + fname
             break
+    flag = pre + "failure_status-"
     failures = {
-        f.stem.removeprefix("failure_status-"): table
-        for f in sorted(d.glob("failure_status-*.csv"))
+        f.stem.removeprefix(flag): table
+        for f in sorted(p for p in d.iterdir() if p.name.startswith(flag) and p.suffix == ".csv")
         if (table := _read_optional(f, "%time", [], None)) is not None  # (empty: no failure)
     }
-    for name, table in tables.items():
+    for name, table in [*tables.items(), *(("failure " + k, v) for k, v in failures.items())]:
         if table.time.dtype.kind != "i":
             raise LogFormatError(table.path, f"column '%time' ({name}): expected integer ns")
 
