@@ -86,6 +86,19 @@ def test_pure_heading_error_gives_heading_only() -> None:
     assert np.degrees(free.total).max() < 1e-6
 
 
+def test_a_reference_with_no_valid_sample_says_so() -> None:
+    t, q_ref = _attitudes()
+    est = Estimate(filter="x", t=t, q_nb=q_ref)
+    masked = _flight_with_reference(q_ref, t, heading_free=True)
+    masked = masked.replace(reference=Reference(t=t, q_nb=q_ref, kind="mocap", heading_free=True,
+                                                mask=np.zeros(len(t), dtype=bool)))
+    with pytest.raises(ValueError, match="no valid sample \\(every one masked or NaN"):
+        broad_errors(est, masked)
+    later = _flight_with_reference(q_ref, t + 1000.0, heading_free=False)  # (valid, but not at est.t)
+    with pytest.raises(ValueError, match="no valid sample overlaps the estimate in time"):
+        broad_errors(est, later)
+
+
 def test_pure_tilt_error_gives_inclination_only() -> None:
     t, q_ref = _attitudes()
     axis = np.column_stack([np.cos(0.7 * t), np.sin(0.7 * t), np.zeros_like(t)])  # horizontal, turning

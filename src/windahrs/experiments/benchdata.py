@@ -124,6 +124,9 @@ def broad_errors(est: Estimate, flight: Flight, *, remove_heading: bool | None =
     ok &= np.isfinite(est.q_nb).all(axis=1)
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
+        if not np.isfinite(q_ref_all).all(axis=1).any():
+            raise ValueError("reference: no valid sample (every one masked or NaN, e.g. a BROAD trial whose "
+                             "movement mask selects none)")
         raise ValueError("reference: no valid sample overlaps the estimate in time")
     e = quat_mul(est.q_nb[idx], quat_conj(q_ref[idx]))
     e = e / np.linalg.norm(e, axis=1, keepdims=True)
