@@ -581,7 +581,7 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
     import json
 
     from windahrs.experiments.align import unaligned_clock_note
-    from windahrs.experiments.benchdata import bench_data, discover_flights
+    from windahrs.experiments.benchdata import bench_data, discover_flights, trial_names
     from windahrs.filters.registry import make_estimator
     from windahrs.flight import with_declination
 
@@ -618,7 +618,8 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
         )
     if own_clock:  # once for the folder, not once per recording
         paths = list(own_clock)
-        shown = ", ".join(Path(p).name for p in paths[:5]) + (", ..." if len(paths) > 5 else "")
+        label = dict(zip(map(str, found.flights), trial_names(list(found.flights)), strict=True))  # (as the table)
+        shown = ", ".join(label.get(p, Path(p).name) for p in paths[:5]) + (", ..." if len(paths) > 5 else "")
         _note(f"note: {len(paths)} recording{'s' if len(paths) > 1 else ''} ({shown}): {own_clock[paths[0]]}")
     if not res.trial_names:
         why = "; ".join(f"{s.path}: {s.reason}" for s in res.skipped)
