@@ -34,7 +34,7 @@ from windahrs.experiments.benchdata import (
     trial_names,
 )
 from windahrs.filters.registry import make_estimator, names
-from windahrs.flight import Flight, ImuStream, Reference
+from windahrs.flight import Flight, ImuStream, MagStream, Reference
 from windahrs.io import read_flight
 from windahrs.metrics import attitude_errors, score
 from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
@@ -52,10 +52,13 @@ ALFA_SEQUENCE = "carbonZ_2018-07-18-15-53-31_1_engine_failure"
 
 
 def _flight_with_reference(q_ref: np.ndarray, t: np.ndarray, *, heading_free: bool) -> Flight:
+    """A flight scored against q_ref; with a magnetometer unless heading_free (a recording
+    without one scores heading free of its datum: metrics.reference_of)."""
     n = len(t)
     imu = ImuStream(t=t, w_b=np.zeros((n, 3)), f_b=np.tile([0.0, 0.0, -9.80665], (n, 1)))
     kind = "mocap" if heading_free else "autopilot"
-    return Flight(imu=imu, reference=Reference(t=t, q_nb=q_ref, kind=kind, heading_free=heading_free))
+    mag = None if heading_free else MagStream(t=t, mag_b=np.tile([20e-6, 0.0, 45e-6], (n, 1)))
+    return Flight(imu=imu, mag=mag, reference=Reference(t=t, q_nb=q_ref, kind=kind, heading_free=heading_free))
 
 
 def _attitudes() -> tuple[np.ndarray, np.ndarray]:
@@ -84,6 +87,20 @@ def test_pure_heading_error_gives_heading_only() -> None:
     free = broad_errors(Estimate(filter="x", t=t, q_nb=q_est), _flight_with_reference(q_ref, t, heading_free=True))
     assert np.isclose(np.degrees(free.heading_offset), 10.0)
     assert np.degrees(free.total).max() < 1e-6
+
+
+def test_without_a_magnetometer_heading_is_scored_free_of_its_datum() -> None:
+    """Nothing on board a recording without a magnetometer shares its reference's north: a
+    constant heading offset is removed before scoring (as for ANSFL's, or mocap)."""
+    t, q_ref = _attitudes()
+    q_est = quat_mul(quat_exp(np.array([0.0, 0.0, 40 * DEG])), q_ref)
+    with_mag = _flight_with_reference(q_ref, t, heading_free=False)
+    without = with_mag.replace(mag=None)
+    est = Estimate(filter="x", t=t, q_nb=q_est)
+    assert np.allclose(np.degrees(broad_errors(est, with_mag).heading), 40.0, atol=1e-9)
+    free = broad_errors(est, without)
+    assert np.isclose(np.degrees(free.heading_offset), 40.0) and np.degrees(free.total).max() < 1e-4
+    assert score(est, without).rmse_total_deg < 1e-4 and score(est, with_mag).rmse_total_deg > 39.0
 
 
 def test_a_reference_with_no_valid_sample_says_so() -> None:

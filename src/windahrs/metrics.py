@@ -58,7 +58,11 @@ class AttitudeErrors:
 
 def reference_of(flight: Flight) -> tuple[F64, F64, str, bool]:
     """(t, q_nb, label, heading_free) of what an estimate is scored against: the
-    simulation truth, else the recording's reference (mocap or the autopilot's)."""
+    simulation truth, else the recording's reference (mocap or the autopilot's). A recording
+    without a magnetometer scores heading free of its datum, as one whose reference declares
+    it (mocap; ANSFL, for the same reason): nothing on board shares the reference's north
+    (an estimator without GNSS starts its heading anywhere), so a constant heading offset is
+    removed and the drift scored."""
     if flight.truth is not None:
         return flight.truth.t, flight.truth.q_nb, "truth", False
     if flight.reference is not None:
@@ -66,7 +70,7 @@ def reference_of(flight: Flight) -> tuple[F64, F64, str, bool]:
         q = r.q_nb.copy()
         if r.mask is not None:
             q[~r.mask] = np.nan
-        return r.t, q, r.kind, r.heading_free
+        return r.t, q, r.kind, r.heading_free or flight.mag is None
     raise ValueError("flight: expected truth or a reference attitude to score against, found neither")
 
 

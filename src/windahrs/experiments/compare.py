@@ -42,7 +42,7 @@ from windahrs.experiments.align import (
 )
 from windahrs.filters.base import Estimator, MissingSensorError
 from windahrs.flight import Flight
-from windahrs.metrics import Score, score
+from windahrs.metrics import Score, reference_of, score
 from windahrs.rotation import euler_from_quat
 
 __all__ = [
@@ -310,8 +310,9 @@ class CompareResult:
     rows: tuple[Score, ...]
     estimates: tuple[tuple[str, Estimate], ...]
     alignment: AlignmentOutcome = AlignmentOutcome()
-    #: the reference has no heading datum (mocap): each filter's constant heading offset was
-    #: removed before scoring (:func:`windahrs.metrics.attitude_errors`)
+    #: the reference has no heading datum (mocap), or the recording no magnetometer: each
+    #: filter's constant heading offset was removed before scoring
+    #: (:func:`windahrs.metrics.reference_of`, :func:`~windahrs.metrics.attitude_errors`)
     heading_free: bool = False
 
     @property
@@ -322,7 +323,7 @@ class CompareResult:
         """The RMSE table in degrees: per axis from sample 50 and over the second half,
         tilt and total."""
         rows = self.rows
-        free = "; a constant heading offset removed per filter (the reference has no heading datum)"
+        free = "; a constant heading offset removed per filter (no heading datum shared with the reference)"
         lines = [f"RMSE in deg against {rows[0].reference}{' (aligned)' if self.aligned else ''}"
                  f"{free if self.heading_free else ''}; from sample 50 | second half"]
         axes = f"{'roll':>8}{'pitch':>8}{'yaw':>8} |"
@@ -409,7 +410,7 @@ def compare(
         results += rest
     scored = outcome.apply(flight)
     rows = tuple(score(est, scored) for _, est in results)
-    free = scored.truth is None and scored.reference is not None and scored.reference.heading_free
+    free = scored.truth is None and scored.reference is not None and reference_of(scored)[3]
     return CompareResult(rows=rows, estimates=tuple(results), alignment=outcome, heading_free=free)
 
 
