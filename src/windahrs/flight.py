@@ -229,10 +229,14 @@ class MagStream:
 
 @dataclass(frozen=True)
 class GnssStream:
-    """GNSS velocity. t: (N,) s (time of validity). v_n: (N, 3) m/s, NED."""
+    """GNSS velocity. t: (N,) s (time of validity). v_n: (N, 3) m/s, NED. v_sigma: (N,)
+    m/s or None, the receiver's own 1-sigma speed accuracy per sample (u-blox ``sAcc``,
+    PX4's ``s_variance_m_s``; NaN where it gave none), which the INS takes as the velocity's
+    noise where it exceeds ``gnss_sigma`` (:mod:`windahrs.aid.gnss_vel`)."""
 
     t: F64
     v_n: F64
+    v_sigma: F64 | None = None
 
     def __post_init__(self) -> None:
         t = _check_time("gnss.t", self.t)
@@ -241,6 +245,17 @@ class GnssStream:
         _check_bulk("gnss.v_n", v, GNSS_VELOCITY_RANGE, "m/s")
         _set(self, "t", t)
         _set(self, "v_n", v)
+        if self.v_sigma is not None:
+            s = _as_array("gnss.v_sigma", self.v_sigma, 1, None)
+            _check_len("gnss.v_sigma", s, len(t), "gnss.t")
+            bad = np.isfinite(s) & ~((s >= 0.0) & (s <= GNSS_VELOCITY_RANGE))
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise FlightError(
+                    "gnss.v_sigma", f"a speed accuracy in m/s, 0 to {GNSS_VELOCITY_RANGE:g} (NaN: none given)",
+                    f"{float(s[i]):.4g} at row {i}",
+                )
+            _set(self, "v_sigma", s)
 
 
 @dataclass(frozen=True)

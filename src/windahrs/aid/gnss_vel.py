@@ -1,7 +1,12 @@
 """Aid source: GNSS velocity (NED), ``h = v_n``, ``H = I`` on the velocity states,
-R = gnss_sigma^2 I, gated at gate_gnss sigmas ([ins-wind]). Every filter remembers the last
-GNSS velocity and its difference (the accelerometer compensation of :mod:`windahrs.aid.gravity`
-and the velocity input of [mekf-air]). Innovation key: ``"gnss"`` (3 rows).
+R = gnss_sigma^2 I, gated at gate_gnss sigmas ([ins-wind]). A receiver that reports its speed
+accuracy s (:class:`~windahrs.flight.GnssStream` ``v_sigma``: u-blox ``sAcc``, PX4's
+``s_variance_m_s``) is taken at its word where it is worse: R = max(gnss_sigma, s)^2 on the
+horizontal axes and max(gnss_sigma, 1.5 s)^2 on the vertical, as PX4 EKF2 does
+(``max(sacc, EKF2_GPS_V_NOISE)``, the vertical 1.5 times: its "typical ratio of vacc/hacc").
+Every filter remembers the last GNSS velocity and its difference (the accelerometer
+compensation of :mod:`windahrs.aid.gravity` and the velocity input of [mekf-air]). Innovation
+key: ``"gnss"`` (3 rows).
 
 Reset: GNSS velocity kept out by its gate for ``reset_timeout`` means the INS has lost its
 velocity (and with it, usually, its attitude: one 40 rad/s gyro spike tilts it by 10 deg and
@@ -93,6 +98,10 @@ from windahrs.core.reset import (
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = ("gnss_sigma", "gnss_timing_sigma", "gate_gnss", "reset_timeout")
 
+#: The vertical velocity's accuracy over the horizontal one that a receiver reports (PX4 EKF2:
+#: "use 1.5 as a typical ratio of vacc/hacc", its vertical variance 1.5^2 times the horizontal).
+VERTICAL_SACC_RATIO = 1.5
+
 
 #: Time constant, s, of the means that level the attitude at a GNSS reset: the specific force
 #: in an almost inertial frame (rotated into each new body frame by the gyro) and the GNSS
@@ -135,17 +144,23 @@ def remember_gnss(prm, x, flags, t, row):
 @njit(inline="always", **_JIT_CORE)
 def fuse_gnss(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     """A GNSS velocity sample (finite) of an initialised filter: row[:3] m/s NED at t s,
-    fused where velocity is a state ([ins-wind])."""
+    row[3] the receiver's speed accuracy (m/s; NaN: not given), fused where velocity is a
+    state ([ins-wind])."""
     if cfg["kind"] == KIND_INS:
         iv = cfg["i_v"]
         H, R = work[W_H : W_H + 3], work[W_R : W_R + 3]
         tau = prm["gnss_timing_sigma"] if flags[S_AGNSS] == 1 else 0.0
+        s = row[3]  # (the receiver's word where worse than gnss_sigma: PX4's max(sacc, EKF2_GPS_V_NOISE))
         for k in range(3):
             H[k, 0], H[k, 1], H[k, 2] = 0.0, 0.0, 0.0
             for a in range(3):
                 H[k, iv + a] = 1.0 if k == a else 0.0
                 R[k, a] = 0.0
-            R[k, k] = prm["gnss_var"] + (tau * x[X_AGNSS + k]) ** 2  # noise, and timing: late by tau, off by a tau
+            var = prm["gnss_var"]
+            if s == s:  # (finite: the readers give NaN or a value within range)
+                sk = s if k < 2 else VERTICAL_SACC_RATIO * s
+                var = max(var, sk * sk)
+            R[k, k] = var + (tau * x[X_AGNSS + k]) ** 2  # noise, and timing: late by tau, off by a tau
             sup[0, k] = iv + k
             work[W_NU, k] = row[k] - x[X_V + k]
         sensor, m, ns = np.int64(INN_GNSS), np.int64(3), np.int64(3)

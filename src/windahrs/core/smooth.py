@@ -518,7 +518,8 @@ def reversed_flight(flight: Flight) -> Flight:
     if flight.mag is not None:
         mag = MagStream(t0 + t1 - flight.mag.t[::-1], flight.mag.mag_b[::-1].copy())
     if flight.gnss is not None:
-        gnss = GnssStream(t0 + t1 - flight.gnss.t[::-1], -flight.gnss.v_n[::-1])
+        g = flight.gnss
+        gnss = GnssStream(t0 + t1 - g.t[::-1], -g.v_n[::-1], None if g.v_sigma is None else g.v_sigma[::-1].copy())
     return dataclasses.replace(
         flight, imu=imu, mag=mag, gnss=gnss, air=None, truth=None, reference=None, ref_wind=None,
         repairs={}, repair_times={},

@@ -379,7 +379,7 @@ def align_gnss_clock(flight: Flight, alignment: Alignment) -> Flight:
     declared = float(flight.meta.get("gnss.timing_sigma_s", math.inf) or 0.0)
     if math.isfinite(sigma) and sigma < declared:
         meta["gnss.timing_sigma_s"] = float(sigma)
-    gnss = GnssStream(t=flight.gnss.t - tau, v_n=flight.gnss.v_n)
+    gnss = GnssStream(t=flight.gnss.t - tau, v_n=flight.gnss.v_n, v_sigma=flight.gnss.v_sigma)
     return flight.replace(gnss=gnss, meta=meta)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -187,13 +188,14 @@ class Streamer(ABC):
 
     def push(self, kind: int, t: float, values: F64) -> None:
         """Dispatch one sample; ``values`` as in the Flight stream (IMU: [w_b, f_b] (6,);
-        mag: (3,); GNSS: (3,); air: [tas, aoa, sideslip] (3,), NaN angles without vanes)."""
+        mag: (3,); GNSS: v_n (3,), or [v_n, v_sigma] (4,) and more, as :func:`merge_events`
+        rows; air: [tas, aoa, sideslip] (3,), NaN angles without vanes)."""
         if kind == EVENT_IMU:
             self.imu(t, values[:3], values[3:6])
         elif kind == EVENT_MAG:
             self.mag(t, values[:3])
         elif kind == EVENT_GNSS:
-            self.gnss(t, values[:3])
+            self.gnss(t, values[:3], float(values[3]) if len(values) > 3 else np.nan)
         elif kind == EVENT_AIR:
             self.air(t, float(values[0]), float(values[1]), float(values[2]))
         else:
@@ -215,13 +217,16 @@ class Streamer(ABC):
             return
         self._mag(t, np.asarray(mag_b, dtype=np.float64))
 
-    def gnss(self, t: float, v_n: F64) -> None:
-        """GNSS velocity sample (m/s, NED) at t."""
+    def gnss(self, t: float, v_n: F64, v_sigma: float = np.nan) -> None:
+        """GNSS velocity sample (m/s, NED) at t, with the receiver's speed accuracy v_sigma
+        (m/s, 1 sigma; NaN: not given; :class:`~windahrs.flight.GnssStream`)."""
+        if math.isfinite(v_sigma) and v_sigma < 0.0:
+            raise ValueError(f"v_sigma: expected a speed accuracy >= 0 m/s (NaN: not given), found {v_sigma!r}")
         self._clock(t, "gnss")
         if not np.isfinite(v_n).all():
             self.skipped["gnss"] += 1
             return
-        self._gnss(t, np.asarray(v_n, dtype=np.float64))
+        self._gnss(t, np.asarray(v_n, dtype=np.float64), float(v_sigma))
 
     def air(self, t: float, tas: float, aoa: float = np.nan, sideslip: float = np.nan) -> None:
         """Air-data sample: true airspeed m/s, angle of attack and sideslip rad (NaN: no vanes)."""
@@ -237,7 +242,7 @@ class Streamer(ABC):
     def _mag(self, t: float, mag_b: F64) -> None:
         """Default: the filter does not use the magnetometer."""
 
-    def _gnss(self, t: float, v_n: F64) -> None:
+    def _gnss(self, t: float, v_n: F64, v_sigma: float) -> None:
         """Default: the filter does not use GNSS velocity."""
 
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
@@ -301,8 +306,9 @@ class EventStreamer(Streamer):
         self._row[0, :3] = mag_b
         self._event(EVENT_MAG, t)
 
-    def _gnss(self, t: float, v_n: F64) -> None:
+    def _gnss(self, t: float, v_n: F64, v_sigma: float) -> None:
         self._row[0, :3] = v_n
+        self._row[0, 3:6] = (v_sigma, np.nan, np.nan)  # (as merge_events lays a GNSS row out)
         self._event(EVENT_GNSS, t)
 
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:
@@ -314,7 +320,8 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
     """All samples of the streams in ``use`` in processing order.
 
     Returns times (E,), kinds (E,) (EVENT_* codes) and values (E, 6) (IMU: w_b, f_b;
-    mag, GNSS: 3 values then NaN; air: tas, aoa, sideslip then NaN), in memory reused
+    mag: 3 values then NaN; GNSS: v_n, the receiver's speed accuracy (NaN when not given),
+    then NaN; air: tas, aoa, sideslip then NaN), in memory reused
     from dropped events (:mod:`windahrs.core.pool`: a run drops its events when it ends,
     and the next run's take no page faults).
     """
@@ -327,8 +334,9 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
 
 def event_streams(flight: Flight, use: frozenset[str]) -> tuple[F64, ...]:
     """The arguments of :func:`merge_into` before its outputs: the flight's streams in
-    ``use`` as contiguous float64 arrays, (0,) and (0, 3) for a stream left out; the air
-    data as (n, 3) columns tas, aoa, sideslip (NaN for vanes it lacks)."""
+    ``use`` as contiguous float64 arrays, (0,) and (0, 3) for a stream left out; the GNSS as
+    (n, 4) columns v_n, v_sigma (NaN when the stream has none); the air data as (n, 3)
+    columns tas, aoa, sideslip (NaN for vanes it lacks)."""
 
     def arr(a: object) -> F64:
         return np.ascontiguousarray(a, dtype=np.float64)
@@ -338,7 +346,9 @@ def event_streams(flight: Flight, use: frozenset[str]) -> tuple[F64, ...]:
     if "mag" in use and flight.mag is not None:
         mag = (arr(flight.mag.t), arr(flight.mag.mag_b))
     if "gnss" in use and flight.gnss is not None:
-        gnss = (arr(flight.gnss.t), arr(flight.gnss.v_n))
+        g = flight.gnss
+        sigma = np.full(len(g.t), np.nan) if g.v_sigma is None else g.v_sigma
+        gnss = (arr(g.t), arr(np.column_stack([g.v_n, sigma])))
     if "air" in use and flight.air is not None:
         a, nan = flight.air, np.full(len(flight.air.t), np.nan)
         vanes = (nan if a.aoa is None else a.aoa, nan if a.sideslip is None else a.sideslip)
@@ -351,7 +361,8 @@ def merge_into(t_imu, w_b, f_b, t_mag, mag_b, t_gnss, v_n, t_air, air, t, kinds,
     """Merge the streams (:func:`event_streams`) into t (E,), kinds (E,) and vals (E, 6)
     (E: all their samples), by time, and at equal times in the kinds' order (EVENT_IMU
     first): each stream's time is strictly increasing (windahrs.flight), so taking the
-    earliest next sample of the four, the lowest kind at a tie, is that order."""
+    earliest next sample of the four, the lowest kind at a tie, is that order. A row takes
+    its stream's columns, NaN after them."""
     times = (t_imu, t_mag, t_gnss, t_air)
     nxt = np.zeros(4, dtype=np.int64)
     for e in range(t.shape[0]):
@@ -369,8 +380,9 @@ def merge_into(t_imu, w_b, f_b, t_mag, mag_b, t_gnss, v_n, t_air, air, t, kinds,
                 row[c], row[3 + c] = w_b[i, c], f_b[i, c]
             continue
         src = mag_b if k == EVENT_MAG else v_n if k == EVENT_GNSS else air
-        for c in range(3):
-            row[c], row[3 + c] = src[i, c], np.nan
+        w = src.shape[1]
+        for c in range(6):
+            row[c] = src[i, c] if c < w else np.nan
 
 
 class Estimator(ABC):

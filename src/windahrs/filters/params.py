@@ -226,7 +226,9 @@ class EskfParams:
     variance, default 2.5 (m/s^2)^2: rotor vibration); gate_drag; air_density kg/m^3
     (ISA sea level).
 
-    GNSS velocity ([ins-wind]): gnss_sigma m/s per axis; gnss_timing_sigma s, the uncertainty
+    GNSS velocity ([ins-wind]): gnss_sigma m/s per axis, the floor of a receiver's own speed
+    accuracy where the flight gives it (``GnssStream.v_sigma``: PX4 EKF2's
+    ``max(sacc, EKF2_GPS_V_NOISE)``, :mod:`windahrs.aid.gnss_vel`); gnss_timing_sigma s, the uncertainty
     of its time stamps against the IMU's: a velocity late or early by tau is off by the
     vehicle's acceleration times tau, so ``(gnss_timing_sigma a_k)^2`` is added to R per axis,
     with a the GNSS stream's own acceleration (its last velocity difference quotient; no

@@ -484,7 +484,7 @@ class UsqueStreamer(CompiledStreamer):
             self._st = st = _grow(st)  # an event logs at most one row per sensor
         run_usque(st, self._t, self._kind, self._row, self._none[0], self._none[1], self._none[2], self._none[4], False)
 
-    def _gnss(self, t: float, v_n: F64) -> None:
+    def _gnss(self, t: float, v_n: F64, v_sigma: float) -> None:
         """[usque] fuses no GNSS velocity."""
 
     def _air(self, t: float, tas: float, aoa: float, sideslip: float) -> None:

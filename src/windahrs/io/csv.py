@@ -532,7 +532,7 @@ _COMMON = ("file", "time", "time_unit", "frame")
 _SECTION_KEYS: dict[str, tuple[str, ...]] = {
     "imu": (*_COMMON, "gyro", "gyro_unit", "accel", "accel_unit", "mount_rpy_deg"),
     "mag": (*_COMMON, "columns", "unit", "mount_rpy_deg"),
-    "gnss": (*_COMMON, "velocity", "position", "unit"),
+    "gnss": (*_COMMON, "velocity", "position", "unit", "speed_accuracy"),
     "air": (*_COMMON, "tas", "unit", "aoa", "sideslip", "angle_unit"),
     "reference": (*_COMMON, "kind", "heading_free", "quaternion", "quaternion_order", "euler",
                   "angle_unit"),
@@ -749,15 +749,23 @@ def _csv_mag(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], re
 def _gnss_cols(man: _Manifest) -> list[str]:
     if man.has("gnss", "velocity") == man.has("gnss", "position"):
         raise man.fail("gnss.velocity/gnss.position", "exactly one of the two", "both or neither")
-    return man.names("gnss", "velocity" if man.has("gnss", "velocity") else "position", 3)
+    cols = man.names("gnss", "velocity" if man.has("gnss", "velocity") else "position", 3)
+    if man.has("gnss", "speed_accuracy"):  # (the receiver's speed accuracy: GnssStream.v_sigma)
+        cols.append(man.text("gnss", "speed_accuracy"))
+    return cols
 
 
 def _csv_gnss(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], rep: RepairLog) -> GnssStream:
-    cols = _gnss_cols(man)
+    cols = _gnss_cols(man)[:3]
     if man.has("gnss", "velocity"):
         _, nav = _body_nav(_frame(man, "gnss"))
         k = SPEED_UNITS[man.choice("gnss", "unit", SPEED_UNITS, "m/s")]
-        return GnssStream(t=t, v_n=rep.rows("gnss", nav(_stack(v, cols) * k), GNSS_VELOCITY_RANGE))
+        sigma = None
+        if man.has("gnss", "speed_accuracy"):  # (in the velocity's unit; NaN where not given)
+            sigma = np.asarray(v[man.text("gnss", "speed_accuracy")], dtype=np.float64) * k
+        return GnssStream(t=t, v_n=rep.rows("gnss", nav(_stack(v, cols) * k), GNSS_VELOCITY_RANGE), v_sigma=sigma)
+    if man.has("gnss", "speed_accuracy"):
+        raise man.fail("gnss.speed_accuracy", "velocity columns to go with it (not position)", "position")
     meta["gnss.derived_from"] = "position"
     return GnssStream(t=t, v_n=rep.rows("gnss", _velocity_from_positions(t, _stack(v, cols)), GNSS_VELOCITY_RANGE))
 

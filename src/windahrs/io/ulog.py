@@ -11,7 +11,9 @@ mag                             ``vehicle_magnetometer`` (``magnetometer_ga``, g
                                 less EKF2's saved bias ``EKF2_MAGBIAS_*`` when it is for
                                 this device, as EKF2 (PX4 1.12 and before) fuses it
 gnss                            ``vehicle_gps_position`` else ``sensor_gps``
-                                (``vel_n/e/d_m_s``, rows with ``vel_ned_valid`` only)
+                                (``vel_n/e/d_m_s``, rows with ``vel_ned_valid`` only;
+                                ``s_variance_m_s``, the receiver's speed accuracy, as
+                                ``v_sigma``)
 air                             ``airspeed_validated`` else ``airspeed``
                                 (``true_airspeed_m_s``); vanes from ``airflow_aoa`` and
                                 ``airflow_slip`` when both are logged
@@ -397,16 +399,23 @@ def _gnss(topics: _Topics, t0: int, meta: dict[str, Any], rep: RepairLog) -> Gns
         if d is None or len(d["timestamp"]) == 0:
             continue
         v = np.column_stack([d[f"vel_{c}_m_s"] for c in "ned"]).astype(np.float64)
+        # the receiver's speed accuracy, m/s (a standard deviation despite its name; EKF2's sacc)
+        s = np.asarray(d["s_variance_m_s"], dtype=np.float64) if "s_variance_m_s" in d else np.full(len(v), np.nan)
         t_us = _stamps(d)
         if "vel_ned_valid" in d:
             ok = np.asarray(d["vel_ned_valid"]) != 0
             meta["gnss.dropped_invalid"] = int(np.count_nonzero(~ok))
-            t_us, v = t_us[ok], v[ok]
+            t_us, v, s = t_us[ok], v[ok], s[ok]
         if t_us.size == 0:
             continue
         meta["gnss.topic"] = topics.used[name]
-        t, (v,) = _clean("gnss", t_us, t0, rep, v)
-        return GnssStream(t=t, v_n=rep.rows("gnss", v, GNSS_VELOCITY_RANGE))
+        t, (v, s) = _clean("gnss", t_us, t0, rep, v, s[:, None])
+        s = s[:, 0]
+        s[~((s > 0.0) & (s <= GNSS_VELOCITY_RANGE))] = np.nan  # (0 or none: not given)
+        has = bool(np.isfinite(s).any())
+        if has:
+            meta["gnss.v_sigma"] = "s_variance_m_s (the receiver's speed accuracy)"
+        return GnssStream(t=t, v_n=rep.rows("gnss", v, GNSS_VELOCITY_RANGE), v_sigma=s if has else None)
     return None
 
 

@@ -138,7 +138,7 @@ class RawFlight:
             flight=flight,
             imu=imu,
             mag=arrays(flight.mag, ("t", "mag_b")),
-            gnss=arrays(flight.gnss, ("t", "v_n")),
+            gnss=arrays(flight.gnss, ("t", "v_n", "v_sigma")),
             air=arrays(flight.air, ("t", "tas", "aoa", "sideslip")),
         )
 
@@ -155,7 +155,9 @@ class RawFlight:
         try:
             imu = ImuStream(t=self.imu["t"], w_b=self.imu["w_b"], f_b=self.imu["f_b"])
             mag = None if self.mag is None else MagStream(t=self.mag["t"], mag_b=self.mag["mag_b"])
-            gnss = None if self.gnss is None else GnssStream(t=self.gnss["t"], v_n=self.gnss["v_n"])
+            gnss = None if self.gnss is None else GnssStream(
+                t=self.gnss["t"], v_n=self.gnss["v_n"], v_sigma=self.gnss.get("v_sigma")
+            )
             air = None
             if self.air is not None:
                 air = AirDataStream(
