@@ -71,9 +71,11 @@ def ulog_bytes(
     return bytes(out)
 
 
-def dataflash_bytes(n: int = 200, *, decl_rad: float | None = None) -> bytes:
+def dataflash_bytes(n: int = 200, *, decl_rad: float | None = None, gpa: bool = False) -> bytes:
     """A small binary ArduPilot DataFlash log: FMT messages (the documented 89-byte message
-    0x80), then PARM, IMU, MAG, GPS, ARSP, ATT, XKQ and XKF2 rows."""
+    0x80), then PARM, IMU, MAG, GPS, ARSP, ATT, XKQ and XKF2 rows; with ``gpa``, a GPA row
+    (speed accuracy ``SAcc`` 0.5 m/s, then 0.8 from the second GPS row on) beside each GPS row,
+    at its TimeUS."""
     specs = {  # name: (struct of the fields after the 3-byte header, columns)
         "PARM": ("<Q16sf", "TimeUS,Name,Value", "QNf"),
         "IMU": ("<QB6f", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ", "QBffffff"),
@@ -83,6 +85,7 @@ def dataflash_bytes(n: int = 200, *, decl_rad: float | None = None) -> bytes:
         "ATT": ("<Q3f", "TimeUS,Roll,Pitch,Yaw", "Qfff"),
         "XKQ": ("<QB4f", "TimeUS,C,Q1,Q2,Q3,Q4", "QBffff"),
         "XKF2": ("<QB2f", "TimeUS,C,VWN,VWE", "QBff"),
+        **({"GPA": ("<QBf", "TimeUS,I,SAcc", "QBf")} if gpa else {}),
     }
     out = bytearray()
 
@@ -109,6 +112,8 @@ def dataflash_bytes(n: int = 200, *, decl_rad: float | None = None) -> bytes:
             put(ids["ARSP"], specs["ARSP"][0], t + 4, 0, 17.5)
         if k % 20 == 0:
             put(ids["GPS"], specs["GPS"][0], t + 5, 0, 3, 5.0, 53.0, -1.0)
+            if gpa:
+                put(ids["GPA"], specs["GPA"][0], t + 5, 0, 0.5 if k == 0 else 0.8)
             put(ids["XKF2"], specs["XKF2"][0], t + 6, 0, -2.5, 1.5)
     return bytes(out)
 

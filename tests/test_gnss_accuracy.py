@@ -137,3 +137,19 @@ speed_accuracy = "sacc"
     (tmp_path / "windahrs.toml").write_text(by_position)
     with pytest.raises(ValueError, match="gnss.speed_accuracy"):
         wa.read(tmp_path)
+
+
+def test_read_from_ardupilot_logs(tmp_path: Path) -> None:
+    """``GPA.SAcc``, logged with each GPS row at its TimeUS, is the stream's v_sigma; a log
+    without GPA has none."""
+    from synthetic_logs import dataflash_bytes
+
+    (tmp_path / "a.bin").write_bytes(dataflash_bytes(gpa=True))
+    (tmp_path / "b.bin").write_bytes(dataflash_bytes())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a, b = wa.read(tmp_path / "a.bin"), wa.read(tmp_path / "b.bin")
+    assert a.gnss is not None and a.gnss.v_sigma is not None and b.gnss is not None
+    np.testing.assert_allclose(a.gnss.v_sigma, [0.5] + [0.8] * (len(a.gnss.t) - 1), rtol=1e-6)
+    assert b.gnss.v_sigma is None
+    np.testing.assert_array_equal(a.gnss.v_n, b.gnss.v_n)

@@ -8,7 +8,9 @@ Flight      DataFlash message (fields, units)
 imu         ``IMU`` (``GyrX/Y/Z`` rad/s, ``AccX/Y/Z`` m/s^2), instance ``I`` = ``instance``
 mag         ``MAG`` (``MagX/Y/Z``, milligauss -> tesla x 1e-7)
 gnss        ``GPS`` (``Spd`` m/s, ``GCrs`` deg, ``VZ`` m/s down): north = Spd cos(GCrs),
-            east = Spd sin(GCrs), down = VZ; only rows with ``Status`` >= 3 (3-D fix)
+            east = Spd sin(GCrs), down = VZ; only rows with ``Status`` >= 3 (3-D fix);
+            the receiver's speed accuracy from ``GPA`` (``SAcc`` m/s, logged with each
+            ``GPS`` row at its ``TimeUS``) as ``v_sigma``
 air         ``ARSP`` (``Airspeed``). ArduPilot logs the *equivalent* airspeed; it is used as
             the true airspeed, an approximation that under-reads TAS by about
             sqrt(rho0/rho) - 1: 1.5 % per 300 m of density altitude. ``meta["air.tas_is_eas"]``
@@ -87,6 +89,7 @@ _FIELDS: dict[str, tuple[str, ...]] = {
     "IMU": ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"),
     "MAG": ("MagX", "MagY", "MagZ"),
     "GPS": ("Status", "Spd", "GCrs", "VZ"),
+    "GPA": ("SAcc",),
     "ARSP": ("Airspeed",),
     "XKQ": ("Q1", "Q2", "Q3", "Q4"),
     "XKQ1": ("Q1", "Q2", "Q3", "Q4"),
@@ -288,7 +291,22 @@ def _gnss(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> GnssStr
         return None
     spd, crs, vz = a[ok, 1], a[ok, 2] * DEG, a[ok, 3]
     v_n = np.column_stack([spd * np.cos(crs), spd * np.sin(crs), vz])
-    return GnssStream(t=t[ok], v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE))
+    return GnssStream(t=t[ok], v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE), v_sigma=_speed_accuracy(rows, t0, t[ok]))
+
+
+def _speed_accuracy(rows: _Rows, t0: int, t: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """``GPA.SAcc`` (m/s) at the GNSS times t (s from t0): ArduPilot logs a GPA row with each
+    GPS row at the same ``TimeUS``; NaN where none matches or it is not in (0, range]."""
+    if "GPA" not in rows:
+        return None
+    t_us = np.array([r[0] for r in rows["GPA"]], dtype=np.int64)
+    s = np.array([r[1][0] for r in rows["GPA"]], dtype=np.float64)
+    order = np.argsort(t_us, kind="stable")
+    sec, s = (t_us[order] - t0).astype(np.float64) * _US, s[order]
+    i = np.clip(np.searchsorted(sec, t), 0, len(sec) - 1)  # (GPA rows: at least one)
+    out = np.where(sec[i] == t, s[i], np.nan)
+    out[~((out > 0.0) & (out <= GNSS_VELOCITY_RANGE))] = np.nan
+    return out if np.isfinite(out).any() else None
 
 
 def _air(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> AirDataStream | None:
