@@ -89,8 +89,9 @@ def test_streaming_equals_batch_with_it(fw: Flight) -> None:
     np.testing.assert_array_equal(streamed.q_nb, batch.q_nb)
     np.testing.assert_array_equal(streamed.cov, batch.cov)
     s = est.streamer(f.site, has=has)
-    with pytest.raises(ValueError, match="v_sigma: expected a speed accuracy"):
-        s.gnss(1.0, np.zeros(3), -0.5)
+    for bad in (-0.5, np.inf):
+        with pytest.raises(ValueError, match="v_sigma: expected a speed accuracy"):
+            s.gnss(1.0, np.zeros(3), bad)
 
 
 def test_read_from_px4_logs() -> None:

@@ -220,7 +220,7 @@ class Streamer(ABC):
     def gnss(self, t: float, v_n: F64, v_sigma: float = np.nan) -> None:
         """GNSS velocity sample (m/s, NED) at t, with the receiver's speed accuracy v_sigma
         (m/s, 1 sigma; NaN: not given; :class:`~windahrs.flight.GnssStream`)."""
-        if math.isfinite(v_sigma) and v_sigma < 0.0:
+        if not (math.isnan(v_sigma) or 0.0 <= v_sigma < math.inf):
             raise ValueError(f"v_sigma: expected a speed accuracy >= 0 m/s (NaN: not given), found {v_sigma!r}")
         self._clock(t, "gnss")
         if not np.isfinite(v_n).all():
