@@ -134,6 +134,7 @@ speed_accuracy = "sacc"
     assert f.gnss is not None and f.gnss.v_sigma is not None
     np.testing.assert_allclose(f.gnss.v_sigma, 10.0 * f.gnss.t, atol=1e-9)  # (36 km/h per s = 10 m/s per s)
     np.testing.assert_allclose(f.gnss.v_n[:, 0], 1 / 3.6)
+    assert f.meta["gnss.v_sigma"] == "column 'sacc' (the receiver's speed accuracy)"
     by_position = manifest.replace('velocity = ["vn", "ve", "vd"]', 'position = ["vn", "ve", "vd"]')
     (tmp_path / "windahrs.toml").write_text(by_position)
     with pytest.raises(ValueError, match="gnss.speed_accuracy"):
@@ -152,5 +153,6 @@ def test_read_from_ardupilot_logs(tmp_path: Path) -> None:
         a, b = wa.read(tmp_path / "a.bin"), wa.read(tmp_path / "b.bin")
     assert a.gnss is not None and a.gnss.v_sigma is not None and b.gnss is not None
     np.testing.assert_allclose(a.gnss.v_sigma, [0.5] + [0.8] * (len(a.gnss.t) - 1), rtol=1e-6)
-    assert b.gnss.v_sigma is None
+    assert b.gnss.v_sigma is None and "gnss.v_sigma" not in b.meta
+    assert a.meta["gnss.v_sigma"].startswith("GPA.SAcc")
     np.testing.assert_array_equal(a.gnss.v_n, b.gnss.v_n)

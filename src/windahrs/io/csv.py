@@ -762,7 +762,9 @@ def _csv_gnss(man: _Manifest, t: F64, v: dict[str, F64], meta: dict[str, Any], r
         k = SPEED_UNITS[man.choice("gnss", "unit", SPEED_UNITS, "m/s")]
         sigma = None
         if man.has("gnss", "speed_accuracy"):  # (in the velocity's unit; NaN where not given)
-            sigma = np.asarray(v[man.text("gnss", "speed_accuracy")], dtype=np.float64) * k
+            name = man.text("gnss", "speed_accuracy")
+            sigma = np.asarray(v[name], dtype=np.float64) * k
+            meta["gnss.v_sigma"] = f"column {name!r} (the receiver's speed accuracy)"
         return GnssStream(t=t, v_n=rep.rows("gnss", nav(_stack(v, cols) * k), GNSS_VELOCITY_RANGE), v_sigma=sigma)
     if man.has("gnss", "speed_accuracy"):
         raise man.fail("gnss.speed_accuracy", "velocity columns to go with it (not position)", "position")

@@ -291,7 +291,10 @@ def _gnss(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> GnssStr
         return None
     spd, crs, vz = a[ok, 1], a[ok, 2] * DEG, a[ok, 3]
     v_n = np.column_stack([spd * np.cos(crs), spd * np.sin(crs), vz])
-    return GnssStream(t=t[ok], v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE), v_sigma=_speed_accuracy(rows, t0, t[ok]))
+    sigma = _speed_accuracy(rows, t0, t[ok])
+    if sigma is not None:
+        meta["gnss.v_sigma"] = "GPA.SAcc (the receiver's speed accuracy)"
+    return GnssStream(t=t[ok], v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE), v_sigma=sigma)
 
 
 def _speed_accuracy(rows: _Rows, t0: int, t: NDArray[np.float64]) -> NDArray[np.float64] | None:
