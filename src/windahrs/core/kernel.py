@@ -134,8 +134,7 @@ from windahrs.core.layout import (
     X_W,
     X_WLAST,
     KernelState,
-    cov_stride,
-    mean_rate,
+    cov_stride_of,
 )
 from windahrs.core.pool import stream_fence, stream_store3
 from windahrs.core.predict import (
@@ -1061,7 +1060,7 @@ class CompiledEstimator(Estimator):
         q, bg = new((N, 4)), new((N, 3))
         v = new((N, 3)) if L.has("v") else np.empty((0, 3))
         w = new((N, 3)) if L.has("wind") else np.empty((0, 3))
-        every = cov_stride(N, d, cov_every, mean_rate(flight.imu.t))
+        every = cov_stride_of(flight.imu.t, d, cov_every)
         st.cfg["cov_every"] = every
         P = new((-(-N // every), d, d))
         return PreparedRun(flight, params, L, st, t_ev, kinds, np.ascontiguousarray(vals), q, bg, v, w, P)

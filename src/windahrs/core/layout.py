@@ -423,6 +423,12 @@ def cov_stride(n: int, d: int, every: int | str | None = None, rate_hz: float | 
     return max(by_rate, budget)
 
 
+def cov_stride_of(t: NDArray[np.float64], d: int, every: int | str | None = None) -> int:
+    """:func:`cov_stride` for a d-state filter on IMU times t (s): the stride a run records
+    the covariance at (:meth:`windahrs.core.kernel.CompiledEstimator.prepare`)."""
+    return cov_stride(len(t), d, every, mean_rate(t))
+
+
 class KernelState(NamedTuple):
     """Everything a compiled filter carries between events (arrays, mutated in place);
     the index constants of this module name their entries."""

@@ -152,7 +152,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.core.kernel import CompiledEstimator, CompiledStreamer
-from windahrs.core.layout import cov_stride, mean_rate
+from windahrs.core.layout import cov_stride_of
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import Estimator, InitialState
 from windahrs.filters.checks import checked
@@ -515,7 +515,7 @@ def default_cov_record(est: Estimate, cov_every: int | None = None) -> Estimate:
     rows do not divide keeps the rows that are on both)."""
     if est.cov is None:
         return est
-    every = cov_stride(len(est.t), est.cov.shape[1], cov_every, mean_rate(est.t))
+    every = cov_stride_of(est.t, est.cov.shape[1], cov_every)
     rows = est.cov_rows
     keep = rows % every == 0
     if keep.all():

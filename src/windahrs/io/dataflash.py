@@ -62,6 +62,7 @@ from windahrs.io.edge import (
     guard,
     invalid_quat_rows,
     param_float,
+    speed_accuracy,
     warn_truncated,
 )
 from windahrs.repair import (
@@ -291,25 +292,20 @@ def _gnss(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> GnssStr
         return None
     spd, crs, vz = a[ok, 1], a[ok, 2] * DEG, a[ok, 3]
     v_n = np.column_stack([spd * np.cos(crs), spd * np.sin(crs), vz])
-    sigma = _speed_accuracy(rows, t0, t[ok])
-    if sigma is not None:
-        meta["gnss.v_sigma"] = "GPA.SAcc (the receiver's speed accuracy)"
+    sigma = None if "GPA" not in rows else speed_accuracy(_gpa_sacc(rows["GPA"], t0, t[ok]), meta, "GPA.SAcc")
     return GnssStream(t=t[ok], v_n=rep.rows("gnss", v_n, GNSS_VELOCITY_RANGE), v_sigma=sigma)
 
 
-def _speed_accuracy(rows: _Rows, t0: int, t: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """``GPA.SAcc`` (m/s) at the GNSS times t (s from t0): ArduPilot logs a GPA row with each
-    GPS row at the same ``TimeUS``; NaN where none matches or it is not in (0, range]."""
-    if "GPA" not in rows:
-        return None
-    t_us = np.array([r[0] for r in rows["GPA"]], dtype=np.int64)
-    s = np.array([r[1][0] for r in rows["GPA"]], dtype=np.float64)
+def _gpa_sacc(gpa: list[tuple[int, tuple[float, ...]]], t0: int, t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``GPA.SAcc`` (m/s) at the GNSS times t (s from t0), from the GPA rows (at least one):
+    ArduPilot logs a GPA row with each GPS row at the same ``TimeUS``; NaN where none
+    matches."""
+    t_us = np.array([r[0] for r in gpa], dtype=np.int64)
+    s = np.array([r[1][0] for r in gpa], dtype=np.float64)
     order = np.argsort(t_us, kind="stable")
     sec, s = (t_us[order] - t0).astype(np.float64) * _US, s[order]
-    i = np.clip(np.searchsorted(sec, t), 0, len(sec) - 1)  # (GPA rows: at least one)
-    out = np.where(sec[i] == t, s[i], np.nan)
-    out[~((out > 0.0) & (out <= GNSS_VELOCITY_RANGE))] = np.nan
-    return out if np.isfinite(out).any() else None
+    i = np.clip(np.searchsorted(sec, t), 0, len(sec) - 1)
+    return np.asarray(np.where(sec[i] == t, s[i], np.nan), dtype=np.float64)
 
 
 def _air(rows: _Rows, t0: int, meta: dict[str, Any], rep: RepairLog) -> AirDataStream | None:

@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from windahrs.flight import FlightError, Site
+from windahrs.repair import GNSS_VELOCITY_RANGE
 
 __all__ = [
     "LogFormatError",
@@ -49,6 +50,7 @@ __all__ = [
     "guard",
     "invalid_quat_rows",
     "param_float",
+    "speed_accuracy",
     "velocity_from_positions",
     "warn_truncated",
 ]
@@ -134,6 +136,19 @@ def velocity_from_positions(t: NDArray[Any], p: NDArray[Any]) -> F64:
     if len(t) < 2:
         return np.full_like(p, np.nan)
     return np.asarray(np.gradient(p, t, axis=0), dtype=np.float64)
+
+
+def speed_accuracy(s: NDArray[Any], meta: dict[str, Any], source: str) -> F64 | None:
+    """A log's receiver speed accuracy s (N,) m/s as :class:`~windahrs.flight.GnssStream`'s
+    ``v_sigma``: NaN where it is 0 (what receivers log without a fix: not given) or beyond
+    the velocity's range; None when no value is left, else ``meta["gnss.v_sigma"]`` names
+    ``source``."""
+    out = np.array(s, dtype=np.float64)
+    out[~((out > 0.0) & (out <= GNSS_VELOCITY_RANGE))] = np.nan
+    if not np.isfinite(out).any():
+        return None
+    meta["gnss.v_sigma"] = f"{source} (the receiver's speed accuracy)"
+    return out
 
 
 def param_float(value: Any) -> float:

@@ -62,6 +62,7 @@ from windahrs.io.edge import (
     guard,
     invalid_quat_rows,
     param_float,
+    speed_accuracy,
     warn_truncated,
 )
 from windahrs.repair import (
@@ -410,12 +411,8 @@ def _gnss(topics: _Topics, t0: int, meta: dict[str, Any], rep: RepairLog) -> Gns
             continue
         meta["gnss.topic"] = topics.used[name]
         t, (v, s) = _clean("gnss", t_us, t0, rep, v, s[:, None])
-        s = s[:, 0]
-        s[~((s > 0.0) & (s <= GNSS_VELOCITY_RANGE))] = np.nan  # (0 or none: not given)
-        has = bool(np.isfinite(s).any())
-        if has:
-            meta["gnss.v_sigma"] = "s_variance_m_s (the receiver's speed accuracy)"
-        return GnssStream(t=t, v_n=rep.rows("gnss", v, GNSS_VELOCITY_RANGE), v_sigma=s if has else None)
+        sigma = speed_accuracy(s[:, 0], meta, "s_variance_m_s")
+        return GnssStream(t=t, v_n=rep.rows("gnss", v, GNSS_VELOCITY_RANGE), v_sigma=sigma)
     return None
 
 
