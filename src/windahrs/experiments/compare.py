@@ -410,7 +410,7 @@ def compare(
         results += rest
     scored = outcome.apply(flight)
     rows = tuple(score(est, scored) for _, est in results)
-    free = scored.truth is None and scored.reference is not None and reference_of(scored)[3]
+    free = reference_of(scored)[3]  # (False against truth; score has raised without either)
     return CompareResult(rows=rows, estimates=tuple(results), alignment=outcome, heading_free=free)
 
 
