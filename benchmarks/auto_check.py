@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 import windahrs as wa
+from windahrs.estimate import Estimate
 from windahrs.experiments.benchdata import aligned_recordings
 from windahrs.filters.base import MissingSensorError
 from windahrs.filters.registry import make_estimator
@@ -37,13 +38,20 @@ LIMIT = 1.10
 SKIP = 50  # samples: the start, scored by the recovery benchmark instead
 
 
-def _tilt_deg(spec: str, flight: Flight, scored: Flight) -> float | None:
+def quiet_run(spec: str, flight: Flight) -> Estimate | None:
+    """``spec``'s estimate of ``flight``, its warnings silenced; None when it cannot run there."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            est = make_estimator(spec).run(flight)
+            return make_estimator(spec).run(flight)
         except (MissingSensorError, ValueError):
             return None
+
+
+def _tilt_deg(spec: str, flight: Flight, scored: Flight) -> float | None:
+    est = quiet_run(spec, flight)
+    if est is None:
+        return None
     tilt = attitude_errors(est, scored).tilt[SKIP:]
     tilt = tilt[np.isfinite(tilt)]
     return float(np.degrees(np.sqrt(np.mean(tilt**2)))) if len(tilt) else None
