@@ -34,9 +34,9 @@ from windahrs.experiments.benchdata import (
     trial_names,
 )
 from windahrs.filters.registry import make_estimator, names
-from windahrs.flight import Flight, ImuStream, MagStream, Reference
+from windahrs.flight import Flight, GnssStream, ImuStream, MagStream, Reference
 from windahrs.io import read_flight
-from windahrs.metrics import attitude_errors, score
+from windahrs.metrics import attitude_errors, heading_start_note, score
 from windahrs.rotation import quat_conj, quat_exp, quat_log, quat_mul, quat_normalize
 from windahrs.sim.scenario import make_scenario, simulate
 from windahrs.sim.sensors import SensorSuite
@@ -101,6 +101,21 @@ def test_without_a_magnetometer_heading_is_scored_free_of_its_datum() -> None:
     free = broad_errors(est, without)
     assert np.isclose(np.degrees(free.heading_offset), 40.0) and np.degrees(free.total).max() < 1e-4
     assert score(est, without).rmse_total_deg < 1e-4 and score(est, with_mag).rmse_total_deg > 39.0
+
+
+def test_the_heading_start_note_is_for_gnss_without_a_magnetometer() -> None:
+    """The note on heading-free scoring is for a recording scored so for want of a magnetometer
+    while GNSS velocity lets an INS learn north: not with a magnetometer, not without GNSS, not
+    against a simulation's truth."""
+    t, q_ref = _attitudes()
+    with_mag = _flight_with_reference(q_ref, t, heading_free=False)
+    gnss = GnssStream(t=t[::10], v_n=np.zeros((len(t[::10]), 3)))
+    assert heading_start_note(with_mag.replace(gnss=gnss)) is None
+    assert heading_start_note(with_mag.replace(mag=None)) is None
+    text = heading_start_note(with_mag.replace(mag=None, gnss=gnss))
+    assert text is not None and text.startswith("no magnetometer: heading scored free of its datum")
+    quad = simulate(make_scenario("quadrotor", wind=0.0, duration=5.0), np.random.default_rng(0))
+    assert heading_start_note(quad.replace(mag=None)) is None
 
 
 def test_a_reference_with_no_valid_sample_says_so() -> None:
@@ -330,6 +345,7 @@ def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureF
     assert set(out["median"]) == {"mekf", INS}
     assert out["median"][INS]["total_deg"] == rows[("path_9", INS)]["total_deg"]  # two the same
 
+    ansfl = mixed / "ansfl" / "Horizontal" / "path_9"
     assert main(["bench-data", str(mixed / "ansfl"), "--filters", "mekf"]) == 0
     std = capsys.readouterr()
     text = std.out
@@ -342,6 +358,10 @@ def test_bench_data_cli_over_a_mixed_folder(mixed: Path, capsys: pytest.CaptureF
         "and the sensor's mount; --align fits and removes both"
     ]
     assert "median over 2 trials" in text and "skipped" not in text
+    # GNSS velocity without a magnetometer, heading-free: said once for the folder too (the
+    # simulated quadrotor, with its magnetometer and truth, is not among them)
+    notes = [line for line in std.err.splitlines() if "no magnetometer" in line]
+    assert notes == [f"windahrs: note: 2 recordings (path_9, path_10): {heading_start_note(read_flight(ansfl))}"]
 
 
 def test_bench_data_cli_failures(mixed: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

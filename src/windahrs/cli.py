@@ -584,6 +584,7 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
     from windahrs.experiments.benchdata import bench_data, discover_flights, trial_names
     from windahrs.filters.registry import make_estimator
     from windahrs.flight import with_declination
+    from windahrs.metrics import heading_start_note
 
     specs = _specs(args.filters)
     if args.out is not None:
@@ -601,12 +602,16 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
             bar.update(done - bar.n)
 
         own_clock: dict[str, str] = {}  # recording name: the note
+        heading_start: dict[str, str] = {}  # ... and the heading-free scoring's
 
         def on_read(path: Path, flight: Flight) -> None:
             _say_read(path, flight, name_file=True)
             note = None if args.align else unaligned_clock_note(flight)
             if note is not None:
                 own_clock[str(path)] = note
+            note = heading_start_note(flight)
+            if note is not None:
+                heading_start[str(path)] = note
 
         def prepare(flight: Flight) -> Flight:  # --declination, on every recording
             return flight if args.declination is None else with_declination(
@@ -616,11 +621,12 @@ def _cmd_bench_data(args: argparse.Namespace) -> int:
             found.flights, specs, align=args.align, skipped=found.skipped, progress=step, on_read=on_read,
             prepare=prepare,
         )
-    if own_clock:  # once for the folder, not once per recording
-        paths = list(own_clock)
-        label = dict(zip(map(str, found.flights), trial_names(list(found.flights)), strict=True))  # (as the table)
-        shown = ", ".join(label.get(p, Path(p).name) for p in paths[:5]) + (", ..." if len(paths) > 5 else "")
-        _note(f"note: {len(paths)} recording{'s' if len(paths) > 1 else ''} ({shown}): {own_clock[paths[0]]}")
+    label = dict(zip(map(str, found.flights), trial_names(list(found.flights)), strict=True))  # (as the table)
+    for notes in (own_clock, heading_start):  # once for the folder, not once per recording
+        if notes:
+            paths = list(notes)
+            shown = ", ".join(label.get(p, Path(p).name) for p in paths[:5]) + (", ..." if len(paths) > 5 else "")
+            _note(f"note: {len(paths)} recording{'s' if len(paths) > 1 else ''} ({shown}): {notes[paths[0]]}")
     if not res.trial_names:
         why = "; ".join(f"{s.path}: {s.reason}" for s in res.skipped)
         raise UsageError(f"{args.dir}: no readable recording with a reference ({why})")
@@ -816,6 +822,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from windahrs.experiments.compare import AlignmentError, compare, select_estimators
     from windahrs.filters.auto import describe_choice
     from windahrs.filters.registry import make_estimator
+    from windahrs.metrics import heading_start_note
     from windahrs.windfit import describe_wind_fit
 
     if args.filters is not None:
@@ -842,6 +849,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             _note(fitted)
     if not args.align:
         _clock_note(flight)
+    if (text := heading_start_note(flight)) is not None:
+        _note(f"note: {text}")
     al = res.alignment
     if al.skipped:
         _note(f"--align: {al.skipped}")

@@ -34,6 +34,7 @@ __all__ = [
     "WindErrors",
     "chi2_band",
     "convergence_index",
+    "heading_start_note",
     "nees_attitude",
     "reference_of",
     "rmse",
@@ -72,6 +73,20 @@ def reference_of(flight: Flight) -> tuple[F64, F64, str, bool]:
             q[~r.mask] = np.nan
         return r.t, q, r.kind, r.heading_free or flight.mag is None
     raise ValueError("flight: expected truth or a reference attitude to score against, found neither")
+
+
+def heading_start_note(flight: Flight) -> str | None:
+    """What to tell a user whose recording is scored heading-free because it has no
+    magnetometer (:func:`reference_of`) while it has GNSS velocity, from which an INS
+    ([ins-wind], [auto]) learns north in motion; None otherwise. One offset removed for the
+    whole recording fits a heading that keeps one datum (vqf, [mekf]) but not one that turns
+    to north part-way, so such an INS is also scored on the seconds before it knows north
+    (docs/RESULTS.md section 44: on ANSFL 41 deg over the first 3 s, 1.6 after them)."""
+    if flight.truth is not None or flight.reference is None or flight.mag is not None or flight.gnss is None:
+        return None
+    return ("no magnetometer: heading scored free of its datum (one constant offset removed from each estimate); an "
+            "estimator that learns north from GNSS velocity (ins-wind, auto) is scored on its start too, before it "
+            "knows north (python benchmarks/heading_start.py splits the two)")
 
 
 def _interp_ref(t_ref: F64, q_ref: F64, t: F64) -> tuple[F64, NDArray[np.bool_]]:
