@@ -138,7 +138,7 @@ def child(spec: str, path: Path) -> dict[str, Any]:
     err = attitude_errors(out, warm)
     late = err.t >= SETTLE_S
     total, tilt = np.degrees(err.total[late]), np.degrees(err.tilt[late])
-    spd_bad, asym = spd_failures(out.cov) if out.cov is not None else (-1, math.nan)
+    spd_bad, asym = spd_failures(out.cov) if out.cov is not None else (0, math.nan)  # (nothing recorded: none)
     return {
         "filter": spec,
         "samples": len(out.t),
@@ -217,11 +217,12 @@ def main(argv: list[str] | None = None) -> int:
         if spec == "ins-wind":
             met = "met" if row["peak_rss_bytes"] <= RSS_TARGET else "NOT met"
             target = f" (target <= {RSS_TARGET / 1e9:.1f} GB: {met})"
+        cov = "no covariance recorded"
+        if row["cov_shape"]:
+            cov = (f"covariance not SPD at {row['cov_not_spd_steps']} of the {row['cov_shape'][0]} recorded (every "
+                   f"{row['cov_every']} samples; max rel. asymmetry {row['cov_max_rel_asymmetry']:.1e})")
         log(
-            f"{spec}: {row['samples']} samples in {row['seconds']} s; NaN rows {row['nan_rows']}; covariance not SPD "
-            f"at {row['cov_not_spd_steps']} of the {row['cov_shape'][0] if row['cov_shape'] else 0} recorded "
-            f"(every {row['cov_every']} samples; max rel. asymmetry "
-            f"{row['cov_max_rel_asymmetry']:.1e}); "
+            f"{spec}: {row['samples']} samples in {row['seconds']} s; NaN rows {row['nan_rows']}; {cov}; "
             f"after {SETTLE_S:g} s: max error {row['max_total_deg']} deg (tilt {row['max_tilt_deg']}), RMSE "
             f"{row['rmse_total_deg']}, 99th percentile {row['p99_total_deg']}; {row['resets']} resets; "
             f"peak RSS {row['peak_rss_bytes'] / 1e9:.2f} GB{target}"
