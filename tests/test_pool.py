@@ -21,7 +21,7 @@ def test_a_dropped_array_is_reused_and_a_kept_one_is_not() -> None:
     # the free list emptied first: earlier tests' blocks, up to POOL_BYTES, would leave no room
     # to keep the blocks freed below (the test failed so once in the whole suite, stop 31)
     gc.collect()
-    pool._free.clear()
+    pool.clear()
     a = pool.empty(shape)
     a[:] = 1.0
     first = _addr(a)
@@ -35,6 +35,7 @@ def test_a_dropped_array_is_reused_and_a_kept_one_is_not() -> None:
     del view, b
     gc.collect()
     c = pool.empty(shape)  # both blocks free now: one of them
+    assert pool._held[0] == sum(m.nbytes for same in pool._free.values() for m in same)  # (the count kept)
     assert c.shape == shape and c.dtype == np.float64 and c.flags["C_CONTIGUOUS"] and c.flags["WRITEABLE"]
     assert _addr(c) in (first, second)
     small = pool.empty((10, 3))  # below MIN_BYTES: plain numpy
@@ -48,7 +49,7 @@ def test_runs_from_reused_memory_equal_the_first() -> None:
     # size that the collection below freed after this run's would be handed out first (the
     # list is last in, first out), which made this test depend on the tests run before it
     gc.collect()
-    pool._free.clear()
+    pool.clear()
     first = est.run(flight, cov_every=1)  # (every sample's covariance: a block the pool keeps)
     q, cov = first.q_nb.copy(), first.cov.copy() if first.cov is not None else None
     addr = _addr(first.cov) if first.cov is not None else 0

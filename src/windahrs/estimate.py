@@ -328,8 +328,10 @@ class Estimate:
                        f"{len(lost) - n_range} spikes), the first at t = {lost[0, 0]:.2f} s")
         for sensor, inn in self.innovations.items():
             n = len(inn.accepted)
+            if n < 10 or inn.accepted.all():  # (too few to judge, or the share is 1: not weighed)
+                continue
             share = inn.accepted_share()
-            if n >= 10 and share < LOW_ACCEPTANCE:
+            if share < LOW_ACCEPTANCE:
                 why = "a disturbed sensor, or a lost state"
                 if sensor == "mag" and "gnss" in self.innovations:  # (an INS: GNSS holds its heading)
                     why = ("a disturbed sensor, a lost state, or a field off the heading GNSS velocity shows, "

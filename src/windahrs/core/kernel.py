@@ -165,6 +165,7 @@ from windahrs.filters.base import (
     InitialState,
     StateView,
     merge_events,
+    stream_counts,
 )
 from windahrs.filters.checks import checked
 from windahrs.filters.params import EskfParams, flight_params
@@ -1049,7 +1050,7 @@ class CompiledEstimator(Estimator):
         params = flight_params(self.params, flight.meta, self.param_names())
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
         t_ev, kinds, vals = merge_events(flight, has)
-        counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
+        counts = stream_counts(flight, has)
         caps = np.array([counts[stream] for stream in SENSOR_STREAMS], dtype=np.int64)
         st = make_state(self.kind, self.additive, params, flight.site, initial, has, caps)
         new = pool.empty if reuse else np.empty

@@ -37,6 +37,11 @@ POOL_BYTES = 1 << 28
 MIN_BYTES = 1 << 18
 
 _free: dict[int, list[NDArray[np.uint8]]] = {}
+#: The bytes on the free list, kept as blocks come and go (summing the list at every release
+#: took a few microseconds per block once it held a few hundred). A list of one, changed by
+#: single operations; under threads it may drift by a block from the true sum, which only
+#: moves the cap by as much.
+_held = [0]
 
 
 class _Block:
@@ -52,8 +57,16 @@ class _Block:
         if free is None:
             return
         n = self.mem.nbytes
-        if sum(m.nbytes for same in list(free.values()) for m in list(same)) + n <= POOL_BYTES:
+        if _held[0] + n <= POOL_BYTES:
             free.setdefault(n, []).append(self.mem)
+            _held[0] += n
+
+
+def clear() -> None:
+    """Empty the free list (its blocks go back to glibc once unreferenced): for a caller that
+    needs room for the blocks it is about to free (the tests)."""
+    _free.clear()
+    _held[0] = 0
 
 
 def empty(shape: tuple[int, ...], dtype: type[np.float64] | type[np.int64] = np.float64) -> NDArray[Any]:
@@ -64,6 +77,7 @@ def empty(shape: tuple[int, ...], dtype: type[np.float64] | type[np.int64] = np.
         return np.empty(shape, dtype)
     try:
         mem = _free.get(n, []).pop()
+        _held[0] -= n
     except IndexError:
         mem = np.empty(n, np.uint8)
     return np.asarray(_Block(mem)).view(dtype).reshape(shape)

@@ -77,6 +77,7 @@ from windahrs.filters.base import (
     InitialState,
     StateView,
     merge_events,
+    stream_counts,
 )
 from windahrs.filters.checks import checked
 from windahrs.filters.params import MAX_MAGNITUDE, read_param_file
@@ -723,8 +724,8 @@ class AdditiveEstimator(Estimator):
             air = np.flatnonzero(kinds == EVENT_AIR)
             vals[air, 3:6] = wind_at(wind, t_ev[air])
         c = self.config(initial)
-        counts = np.bincount(kinds, minlength=len(_STREAMS))
-        caps = {INN_ACCEL: counts[EVENT_IMU], INN_MAG: counts[EVENT_MAG], INN_AIR: counts[EVENT_AIR]}
+        counts = stream_counts(flight, has)
+        caps = {INN_ACCEL: counts["imu"], INN_MAG: counts["mag"], INN_AIR: counts["air"]}
         st = make_state(c, flight.site, has, caps)
         N, d = len(flight.imu.t), len(self.labels)
         q, cov = np.empty((N, 4)), np.empty((N, d, d))

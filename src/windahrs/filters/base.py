@@ -332,6 +332,14 @@ def merge_events(flight: Flight, use: frozenset[str]) -> tuple[F64, NDArray[np.i
     return t, kinds, vals
 
 
+def stream_counts(flight: Flight, use: frozenset[str]) -> dict[str, int]:
+    """How many events of each stream :func:`merge_events` lays out for ``use``: every sample of
+    a stream in it (the streams' lengths: a count of the merged kinds took 30 us a minute of a
+    200 Hz flight), 0 for the others; keys "imu", "mag", "gnss", "air"."""
+    return {s: len(getattr(flight, s).t) if s in use and getattr(flight, s) is not None else 0
+            for s in ("imu", "mag", "gnss", "air")}
+
+
 def event_streams(flight: Flight, use: frozenset[str]) -> tuple[F64, ...]:
     """The arguments of :func:`merge_into` before its outputs: the flight's streams in
     ``use`` as contiguous float64 arrays, (0,) and (0, 3) for a stream left out; the GNSS as

@@ -99,7 +99,7 @@ from windahrs.core.reset import (
     timed_out,
 )
 from windahrs.estimate import Estimate
-from windahrs.filters.base import EVENT_IMU, EVENT_MAG, Estimator, InitialState, merge_events
+from windahrs.filters.base import EVENT_IMU, EVENT_MAG, Estimator, InitialState, merge_events, stream_counts
 from windahrs.filters.checks import checked
 from windahrs.filters.params import EskfParams
 from windahrs.flight import Flight, Site
@@ -552,7 +552,7 @@ class Usque(Estimator):
         self.check(flight)
         has = frozenset(s for s in _STREAMS if getattr(flight, s) is not None) & self.uses
         t_ev, kinds, vals = merge_events(flight, has)
-        counts = dict(zip(_STREAMS, np.bincount(kinds, minlength=len(_STREAMS)), strict=True))
+        counts = stream_counts(flight, has)
         fused = ("accel", "mag", "reset")  # [usque]'s aid sources, and its resets
         caps = np.array(
             [counts[s] if k in fused else 0 for k, s in zip(SENSORS, SENSOR_STREAMS, strict=True)], dtype=np.int64
