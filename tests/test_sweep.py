@@ -219,6 +219,21 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _listening(port: int, proc: subprocess.Popen[bytes], deadline: float) -> bool:
+    """Whether the process ``proc`` is alive and something accepts connections on ``port``
+    before ``deadline`` (time.monotonic); False once it has exited (it killed, if not)."""
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return False
+        with socket.socket() as s:
+            s.settimeout(1.0)
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return proc.poll() is None
+        time.sleep(0.2)
+    proc.kill()
+    return False
+
+
 @pytest.fixture(scope="module")
 def cluster() -> Iterator[tuple[str, list[subprocess.Popen[bytes]]]]:
     """``dask scheduler`` and two ``dask worker`` processes (no nanny: killing one is a
@@ -226,31 +241,33 @@ def cluster() -> Iterator[tuple[str, list[subprocess.Popen[bytes]]]]:
     the module's cluster tests; the killed-worker test, which leaves one worker, runs last."""
     from distributed import Client
 
-    port = _free_port()
-    addr = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")])}
     dask = [sys.executable, "-m", "dask"]
+    quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
     procs: list[subprocess.Popen[bytes]] = []
     try:
-        quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-        procs.append(subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--no-dashboard"], **quiet))
+        # the scheduler first, listening before any worker starts: a worker's own port is any
+        # free one, and one started beside the scheduler once took the port picked for it (the
+        # scheduler died, and the Client hung on the worker's port past its timeout)
+        addr = ""
+        for _ in range(3):
+            port = _free_port()
+            sched = subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                                      "--no-dashboard"], **quiet)
+            procs.append(sched)
+            if _listening(port, sched, deadline=time.monotonic() + 60):
+                addr = f"tcp://127.0.0.1:{port}"
+                break
+        if not addr:
+            pytest.fail("dask scheduler: not listening after 3 tries (each on a fresh port)")
         workers = [
             subprocess.Popen([*dask, "worker", addr, "--nthreads", "1", "--no-nanny", "--no-dashboard",
                               "--host", "127.0.0.1", "--name", f"w{i}"], **quiet)
             for i in range(2)
         ]
         procs += workers
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                with Client(addr, timeout="5s") as c:
-                    c.wait_for_workers(2, timeout=60)
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.5)
+        with Client(addr, timeout="30s") as c:
+            c.wait_for_workers(2, timeout=60)
         yield addr, workers
     finally:
         for p in reversed(procs):
