@@ -53,13 +53,13 @@ class _Block:
         self.__array_interface__ = mem.__array_interface__
 
     def __del__(self) -> None:
-        free = _free  # (None once the interpreter is tearing the module down)
-        if free is None:
+        free, held = _free, _held  # (None once the interpreter is tearing the module down)
+        if free is None or held is None:
             return
         n = self.mem.nbytes
-        if _held[0] + n <= POOL_BYTES:
+        if held[0] + n <= POOL_BYTES:
             free.setdefault(n, []).append(self.mem)
-            _held[0] += n
+            held[0] += n
 
 
 def clear() -> None:
