@@ -89,6 +89,7 @@ PARAMS = (
 #: that the norm and dip checks let through bends the field by far less (45 deg, as the
 #: gravity aid source's tilt, :data:`windahrs.aid.gravity.LOST_COS`).
 LOST_HEADING = math.radians(45.0)
+COS_LOST_HEADING = math.cos(LOST_HEADING)
 #: How many times an INS turns its heading to the magnetometer in one run, by the reset below
 #: (:func:`heading_reset`) or after a GNSS reset (:mod:`windahrs.aid.gnss_vel`), together:
 #: PX4 EKF2's in-flight budget of magnetometer resets when its mag fusion has failed for
@@ -139,7 +140,11 @@ def _mag_disturbed(prm, x, cfg, mx, my, mz, rx, ry, rz):
         n0 = c[0] * mx + c[1] * my + c[2] * mz
         n1 = c[3] * mx + c[4] * my + c[5] * mz
         n2 = c[6] * mx + c[7] * my + c[8] * mz
-        if abs(math.atan2(n2, math.hypot(n0, n1)) - math.atan2(rz, math.hypot(rx, ry))) > dg:
+        # |dip - dip_ref| > dg: the angle between (horizontal, down) of the two fields, both
+        # in the half-plane of a horizontal part >= 0, is the difference of their dips, so
+        # the test is on its cosine (two square roots where two atan2 and two hypot were)
+        hm, hr = math.sqrt(n0 * n0 + n1 * n1), math.sqrt(rx * rx + ry * ry)
+        if hm * hr + n2 * rz < math.cos(dg) * math.sqrt((hm * hm + n2 * n2) * (hr * hr + rz * rz)):
             return True
     return False
 
@@ -297,14 +302,16 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
     RMS for the whole flight before this reset, docs/RESULTS.md section 35). Returns whether
     it reset (the sample is then not fused)."""
     sensor = np.int64(INN_MAG)
-    d = _heading_offset(cfg, x, mx, my, mz, rx, ry)
-    if abs(d) < LOST_HEADING:  # the state still knows the heading, accepted or not
-        accepted_at(x, sensor, t)
+    n0, n1 = _nav_horizontal(cfg, x, mx, my, mz)
+    # |heading offset| < LOST_HEADING: the angle between the two horizontal fields, on its
+    # cosine (the offset's two atan2 only for a reset)
+    if rx * n0 + ry * n1 >= COS_LOST_HEADING * math.sqrt((rx * rx + ry * ry) * (n0 * n0 + n1 * n1)):
+        accepted_at(x, sensor, t)  # the state still knows the heading, accepted or not
     elif timed_out(prm, x, sensor, t):
         ins = cfg["kind"] == KIND_INS
         if ins and (heading_seen_by_gnss(prm, x) or not spend_heading_reset(flags)):
             return False
-        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d)
+        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0)))
         if ins:
             _restart_heading_tied(cfg, prm, flags, P)
         return True
@@ -330,14 +337,20 @@ def spend_heading_reset(flags):
 
 
 @njit(inline="always", **_JIT_CORE)
-def _heading_offset(cfg, x, mx, my, mz, rx, ry):
-    """The rotation about the nav vertical, rad, that turns the field sample m (body; less
-    the hard iron when estimated) onto the reference's heading."""
+def _nav_horizontal(cfg, x, mx, my, mz):
+    """The field sample m (body; less the hard iron when estimated) in the nav frame by the
+    state's attitude: its north and east parts, T."""
     if cfg["i_bm"] >= 0:
         mx, my, mz = mx - x[X_BM], my - x[X_BM + 1], mz - x[X_BM + 2]
     c = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-    n0 = c[0] * mx + c[1] * my + c[2] * mz
-    n1 = c[3] * mx + c[4] * my + c[5] * mz
+    return c[0] * mx + c[1] * my + c[2] * mz, c[3] * mx + c[4] * my + c[5] * mz
+
+
+@njit(inline="always", **_JIT_CORE)
+def _heading_offset(cfg, x, mx, my, mz, rx, ry):
+    """The rotation about the nav vertical, rad, that turns the field sample m (body; less
+    the hard iron when estimated) onto the reference's heading."""
+    n0, n1 = _nav_horizontal(cfg, x, mx, my, mz)
     return _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
 
 
