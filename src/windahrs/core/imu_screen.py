@@ -63,7 +63,7 @@ from windahrs.core.layout import (
     X_WLAST,
     record_dtype,
 )
-from windahrs.core.predict import add_unmeasured_motion
+from windahrs.core.predict import add_unmeasured_motion, flush_cov
 from windahrs.core.quat import _dcm9, _qexp, _qmul, _qnormalize
 
 __all__ = [
@@ -138,7 +138,7 @@ def _catch_up(cfg, x, flags, sc, dt, w, f):
 
 
 @njit(**_JIT_CORE)
-def _clipped(cfg, x, flags, sc, P, work, row, dt):
+def _clipped(cfg, prm, x, flags, sc, P, work, row, dt):
     """Axes held at one large magnitude (:data:`CLIP_W`, :data:`CLIP_F`) for
     :data:`CLIP_SAMPLES` samples are clipped: the true value is beyond it by as much as it
     again, unknown, and that step's motion becomes spread, as a held sample's would (PX4 EKF2
@@ -155,6 +155,7 @@ def _clipped(cfg, x, flags, sc, P, work, row, dt):
             x[X_DF + a - 3] = d
         clip = clip or d > 0
     if clip:
+        flush_cov(cfg, prm, x, P, work)  # (P brought up to date before it is changed)
         add_unmeasured_motion(cfg, x, P, work, dt)
 
 
@@ -204,6 +205,7 @@ def screen_imu(cfg, prm, x, flags, sc, P, inn, acc, work, t, row):
             for a in range(3):
                 x[X_DW + a] = sw * sc["pend"][a]
                 x[X_DF + a] = sf * sc["pend"][3 + a]
+            flush_cov(cfg, prm, x, P, work)  # (P brought up to date before it is changed)
             add_unmeasured_motion(cfg, x, P, work, sc["dt_pend"])
     gr, ar = prm["gyro_range"], prm["accel_range"]
     beyond_w, beyond_f = False, False
@@ -211,7 +213,7 @@ def screen_imu(cfg, prm, x, flags, sc, P, inn, acc, work, t, row):
         beyond_w = beyond_w or abs(row[a]) > gr
         beyond_f = beyond_f or abs(row[3 + a]) > ar
     if flags[S_INIT] == 1 and 0 < dt <= GAP:
-        _clipped(cfg, x, flags, sc, P, work, row, dt)
+        _clipped(cfg, prm, x, flags, sc, P, work, row, dt)
     hold_w, hold_f = beyond_w, beyond_f
     if k > 0 and 0 < dt <= GAP:
         hold_w = hold_w or dw2 > gw2

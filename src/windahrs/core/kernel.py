@@ -108,6 +108,7 @@ from windahrs.core.layout import (
     TRIANGLE_N,
     W_IMU,
     W_M,
+    W_PEEK,
     X_BA,
     X_BG,
     X_BM,
@@ -123,6 +124,8 @@ from windahrs.core.layout import (
     X_MBAR,
     X_NRM,
     X_NWIN,
+    X_PDT,
+    X_PN,
     X_Q,
     X_RM,
     X_TIMU,
@@ -138,10 +141,14 @@ from windahrs.core.layout import (
 )
 from windahrs.core.pool import stream_fence, stream_store3
 from windahrs.core.predict import (
+    _nominal_es,
     _predict_add,
     _predict_es,
     add_held_sample_noise,
     add_to_mean,
+    cov_pending,
+    defer_cov,
+    flush_cov,
     track_accel_noise,
 )
 from windahrs.core.quat import (
@@ -397,6 +404,17 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
 
 
 @njit(inline="always", **_JIT_CORE)
+def cov_deferred(cfg, prm, rs, dt):
+    """Whether an IMU step of dt s (> 0) leaves its covariance prediction to the period's
+    (cov_period, :func:`~windahrs.core.predict.defer_cov`): in a filter that defers (cfg
+    cov_defer: the INS without drag, cov_period > 0), a step no longer than unmeasured_motion_dt (a longer one adds its
+    held-sample noise to P at once) while no rest update may read P (rest detection off, or
+    its start's rest over: rs["n"] < 0)."""
+    return (cfg["cov_defer"] == 1 and dt <= prm["unmeasured_motion_dt"]
+            and (cfg["rest"] == REST_OFF or rs["n"] < 0.0))
+
+
+@njit(inline="always", **_JIT_CORE)
 def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, sc, rs, t, row):
     """An IMU sample (finite): row = [w_b (3) rad/s, f_b (3) m/s^2], at t s:
     screened (:mod:`windahrs.core.imu_screen`), propagation, then the accelerometer's aid
@@ -415,7 +433,15 @@ def step_imu(cfg, prm, x, flags, P, work, sup, inn, acc, sc, rs, t, row):
         if cfg["add_form"] == 1:
             e = corrected_turn(x, row, dt)
             _predict_add(cfg, prm, x, P, work, row[0], row[1], row[2], dt)
+        elif cov_deferred(cfg, prm, rs, dt) and (x[X_PN] > 0.0 or 1.5 * dt < prm["cov_period"]):
+            # the covariance once per cov_period (predict.defer_cov; a step that closes the
+            # period alone, a 100 Hz IMU's, is predicted whole below)
+            e, _, wx, wy, wz, gx, gy, gz = _nominal_es(cfg, prm, x, row[0], row[1], row[2], fx, fy, fz, dt)
+            defer_cov(x, wx, wy, wz, gx, gy, gz, dt)
+            if x[X_PDT] + 0.5 * dt >= prm["cov_period"]:
+                flush_cov(cfg, prm, x, P, work)
         else:
+            flush_cov(cfg, prm, x, P, work)  # (the steps deferred before this one, if any)
             e = _predict_es(cfg, prm, x, P, work, row[0], row[1], row[2], fx, fy, fz, dt)
         if flags[S_FBAR] == 1 or flags[S_MBAR] == 1:
             _rotate_lowpass(cfg, prm, x, flags, e, dt)
@@ -542,6 +568,13 @@ def record(cfg, prm, x, flags, P, work, k, out_q, out_bg, out_v, out_w, out_cov)
         _initial_state(cfg, prm, x, flags, P, work)
         if cfg["wait_mag"] == 1 and flags[S_FMAG] == 0:  # waiting for the heading's sensor
             attitude_cov_about_vertical(cfg, x, P, work, prm["init_att_var"], HEADING_UNKNOWN_VAR)
+    if kc >= 0 and x[X_PN] > 0.0:  # a prediction pending: recorded with it, P left as it is
+        Pp = work[W_PEEK : W_PEEK + P.shape[0]]
+        for i in range(P.shape[0]):
+            for j in range(P.shape[1]):
+                Pp[i, j] = P[i, j]
+        cov_pending(cfg, prm, x, Pp, work)
+        P = Pp
     # (the covariance first, then the vectors, loaded before they are stored: measurably
     # faster code)
     if kc < 0:
@@ -621,6 +654,8 @@ def run_events(st, t_ev, kinds, vals, out_q, out_bg, out_v, out_w, out_cov, rec,
             k += 1
             if smooth:
                 record_pre(sm, k, x, flags, sc, t, row, sample_ok(kind, row))
+        if kind != EVENT_IMU and x[X_PN] > 0.0:  # (an aid source may read or change P)
+            flush_cov(cfg, prm, x, P, work)
         if not sample_ok(kind, row):
             flags[K_SKIP + kind] += 1
         elif kind == EVENT_IMU:
@@ -769,6 +804,9 @@ def make_state(
     # TRIANGLE_N states ([ins-wind]'s 18 in 20 columns: its run 1.236-1.319 -> 1.155-1.234 us
     # per sample), else over the n states ([mekf]'s 6: over 8 its compiled loop was 2-4 % slower)
     cfg["rows"] = n_pad if n > TRIANGLE_N else n
+    # the INS's covariance predicted once per cov_period, as PX4 EKF2 does (not with the drag
+    # aid, whose update reads P at every IMU sample)
+    cfg["cov_defer"] = int(kind == "ins-wind" and not additive and cfg["drag"] == 0 and p.cov_period > 0)
 
     def sig(given: float | None, default: float) -> float:
         return default if given is None else given
@@ -824,6 +862,7 @@ def make_state(
     prm["init_window"] = p.init_window
     prm["reset_timeout"] = p.reset_timeout
     prm["unmeasured_motion_dt"] = p.unmeasured_motion_dt
+    prm["cov_period"] = p.cov_period
     prm["gnss_timing_sigma"] = p.gnss_timing_sigma
     prm["gyro_range"] = p.gyro_range
     prm["accel_range"] = p.accel_range

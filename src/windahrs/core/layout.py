@@ -164,6 +164,7 @@ CFG_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("start_check", 1, "1: the gravity mean's start is checked against a running mean (aid.gravity.start_check)"),
     ("gated_start", 1, "1: a start off the gravity gate fuses samples first, keeps the gyro bias (aid.gravity)"),
     ("rows", 1, "the columns of the prediction's rows of Phi P (kernel.make_state; predict._predict_es)"),
+    ("cov_defer", 1, "1: the covariance predicted once per cov_period over the IMU steps (predict.defer_cov)"),
     ("log_off", N_SENSORS, "first row of each sensor's log"),
     ("log_cap", N_SENSORS, "rows of each sensor's log"),
 )
@@ -209,6 +210,7 @@ PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("accel_range", 1, "accel_range, m/s^2"),
     ("imu_spike_gate", 1, "imu_spike_gate (0: off)"),
     ("unmeasured_motion_dt", 1, "unmeasured_motion_dt, s: IMU steps longer than this add the held-sample noise"),
+    ("cov_period", 1, "cov_period, s: the INS's covariance predicted over the IMU steps of each (predict.defer_cov)"),
     # gravity (aid.gravity)
     ("accel_var", 1, "accel_sigma^2, (m/s^2)^2"),
     ("accel_norm_gate", 1, "accel_norm_gate, share of g"),
@@ -354,7 +356,14 @@ X_KEEPBG = X_AVAR + 38  # for how long after the start, s, gravity updates keep 
 X_HOBS = X_AVAR + 39
 X_HSEEN = X_AVAR + 40
 X_HLAST = X_AVAR + 41
-N_X = X_AVAR + 42
+#: The INS's covariance prediction pending over IMU steps whose nominal state was propagated
+#: (core.predict.defer_cov): the steps, their summed length s, the sums of the bias-corrected
+#: rate times the step (3) and of the specific force times the step (3).
+X_PN = X_AVAR + 42
+X_PDT = X_AVAR + 43
+X_PW = X_AVAR + 44
+X_PF = X_AVAR + 47
+N_X = X_AVAR + 50
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
@@ -393,7 +402,8 @@ W_SI = 61  # (3,) its inverse
 W_NU = 64  # innovation in columns 0..2
 W_DX = 65  # error-state correction
 W_IMU = 66  # the IMU sample propagated in place of a held one: w_b (3), f_b (3)
-N_WORK = 67
+W_PEEK = 67  # (20,) rows: P with its pending prediction, as recorded (kernel.record), P left as it is
+N_WORK = W_PEEK + 20  # (the covariance's padded size at most: NMAX 19 to whole SIMD lanes of 4)
 
 
 def mean_rate(t: NDArray[np.float64]) -> float | None:

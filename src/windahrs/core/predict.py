@@ -29,6 +29,10 @@ from windahrs.core.layout import (
     X_DW,
     X_NAVAR,
     X_NGAIN,
+    X_PDT,
+    X_PF,
+    X_PN,
+    X_PW,
     X_Q,
     X_V,
 )
@@ -50,6 +54,8 @@ HELD_SAMPLE_PARAMS = ("unmeasured_motion_dt",)
 GYRO_SCALE_PARAMS = ("gyro_scale_noise",)
 #: ... and the gyro bias's walk about the nav vertical at a density of its own (error-state only).
 BIAS_WALK_PARAMS = ("gyro_bias_noise_vertical",)
+#: ... and the INS's covariance predicted once per period over the IMU steps in it.
+COV_PERIOD_PARAMS = ("cov_period",)
 INS_PARAMS = ("accel_noise", "accel_noise_measured", "accel_bias_noise", "init_accel_bias", "init_v")
 
 #: The time constant of the accelerometer noise measured on line when no low-pass gives it, s
@@ -114,25 +120,53 @@ def ins_accel_density2(cfg, prm, x, dt):
 
 @njit(**_JIT_FMA)
 def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
-    """The error-state prediction (SPEC 2.4, 2.5), using Phi's block structure: only the attitude (and velocity)
-    rows and columns of P change before Q is added (layout: att 0..2, v 3..5). The 3x3
-    blocks of Phi live in local scalars. Returns the step's turn Exp((w_m - b_g) dt) (the
-    kernel turns its low-passed means with it)."""
-    n, ib, iv, iw, iba = cfg["n"], cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"]
-    M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
-    w = cfg["rows"]  # the columns of M's rows (below)
+    """The error-state prediction (SPEC 2.4, 2.5) over one IMU step: the nominal state
+    (:func:`_nominal_es`), then the covariance (:func:`_cov_es`). Returns the step's turn
+    Exp((w_m - b_g) dt) (the kernel turns its low-passed means with it)."""
+    e, sh, wx, wy, wz, fx, fy, fz = _nominal_es(cfg, prm, x, wmx, wmy, wmz, fmx, fmy, fmz, dt)
+    _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e[0], sh)
+    return e
+
+
+@njit(inline="always", **_JIT_FMA)
+def _nominal_es(cfg, prm, x, wmx, wmy, wmz, fmx, fmy, fmz, dt):
+    """The nominal state over one IMU step of dt s at the measured rate w_m and specific force
+    f_m: the attitude turned by Exp((w_m - b_g) dt), and (the INS) the velocity moved by
+    (C_nb (f_m - b_a) + g) dt with the turned attitude. Returns the turn, the sine of its half
+    angle, and the bias-corrected rate and specific force (what :func:`_cov_es` takes)."""
     wx, wy, wz = wmx - x[X_BG], wmy - x[X_BG + 1], wmz - x[X_BG + 2]
     e, sh = _qexp_half(wx * dt, wy * dt, wz * dt)
     q = _qmul(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], e[0], e[1], e[2], e[3])
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
+    fx, fy, fz = fmx, fmy, fmz
+    if cfg["i_v"] >= 0:
+        C = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
+        if cfg["i_ba"] >= 0:
+            fx, fy, fz = fmx - x[X_BA], fmy - x[X_BA + 1], fmz - x[X_BA + 2]
+        x[X_V] += (C[0] * fx + C[1] * fy + C[2] * fz + 0.0) * dt
+        x[X_V + 1] += (C[3] * fx + C[4] * fy + C[5] * fz + 0.0) * dt
+        x[X_V + 2] += (C[6] * fx + C[7] * fy + C[8] * fz + prm["gravity"]) * dt
+    return e, sh, wx, wy, wz, fx, fy, fz
+
+
+@njit(**_JIT_FMA)
+def _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e0, sh):
+    """The error-state covariance over a step of dt s at the bias-corrected rate w and
+    specific force f, with the attitude the step ends at (x's), ``Phi P Phi^T + Q``, using
+    Phi's block structure: only the attitude (and velocity) rows and columns of P change
+    before Q is added (layout: att 0..2, v 3..5). The 3x3 blocks of Phi live in local
+    scalars. e0, sh: the cosine and sine of half the turn's angle |w| dt."""
+    n, ib, iv, iw, iba = cfg["n"], cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"]
+    M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
+    w = cfg["rows"]  # the columns of M's rows (below)
     # the attitude transition: phi11 = I + c11 W + c12 W^2, phi12 = -dt I + c21 W + c22 W^2,
     # W = [w]x; W^2 = w w^T - |w|^2 I entry by entry as W @ W evaluates it.
     a = math.sqrt(wx * wx + wy * wy + wz * wz)
     if a * dt < 1e-6:  # the series (the closed form loses precision)
         c11, c12 = -dt, 0.5 * dt**2
         c21, c22 = 0.5 * dt**2, -(dt**3) / 6.0
-    else:  # sin(a dt) and 1 - cos(a dt) from the turn's half angle (sh, e[0] = its cosine)
-        s, omc = 2.0 * sh * e[0], 2.0 * sh * sh
+    else:  # sin(a dt) and 1 - cos(a dt) from the turn's half angle (sh, e0 its cosine)
+        s, omc = 2.0 * sh * e0, 2.0 * sh * sh
         c11, c12 = -s / a, omc / a**2
         c21, c22 = omc / a**2, -(a * dt - s) / a**3
     xy, xz, yz = wy * wx, wz * wx, wz * wy
@@ -180,12 +214,6 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     if iv >= 0:
         na = 6
         C = _dcm9(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3])
-        fx, fy, fz = fmx, fmy, fmz
-        if iba >= 0:
-            fx, fy, fz = fmx - x[X_BA], fmy - x[X_BA + 1], fmz - x[X_BA + 2]
-        x[X_V] += (C[0] * fx + C[1] * fy + C[2] * fz + 0.0) * dt
-        x[X_V + 1] += (C[3] * fx + C[4] * fy + C[5] * fz + 0.0) * dt
-        x[X_V + 2] += (C[6] * fx + C[7] * fy + C[8] * fz + prm["gravity"]) * dt
         # Phi[v, att] = CF phi11, Phi[v, bg] = CF phi12 with CF = -C [f]x dt; Phi[v, ba] = -C dt
         f00, f01, f02 = (
             (-C[1] * fz + C[2] * fy) * dt,
@@ -285,7 +313,48 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
         P[iw, iw] += prm["wind_noise2"] * dt
         P[iw + 1, iw + 1] += prm["wind_noise2"] * dt
         P[iw + 2, iw + 2] += prm["wind_noise_vertical2"] * dt
-    return e
+
+
+#: The INS's covariance is predicted once per ``cov_period`` s over the IMU steps in it, its
+#: nominal state at every step (:class:`windahrs.filters.params.EskfParams`, PX4 EKF2's
+#: ``EKF2_PREDICT_US``). A step closes the period when the steps deferred sum to within half a
+#: step of it; the covariance is brought up to date at once before anything reads or changes
+#: it (:func:`flush_cov`).
+
+
+@njit(inline="always", **_JIT_CORE)
+def defer_cov(x, wx, wy, wz, fx, fy, fz, dt):
+    """One IMU step of dt s at the bias-corrected rate w and specific force f added to the
+    covariance's pending step (x[X_PN] steps, x[X_PDT] s, the sums of w dt and f dt)."""
+    x[X_PN] += 1.0
+    x[X_PDT] += dt
+    x[X_PW] += wx * dt
+    x[X_PW + 1] += wy * dt
+    x[X_PW + 2] += wz * dt
+    x[X_PF] += fx * dt
+    x[X_PF + 1] += fy * dt
+    x[X_PF + 2] += fz * dt
+
+
+@njit(inline="always", **_JIT_CORE)
+def cov_pending(cfg, prm, x, P, work):
+    """P predicted over the pending steps as one step of their summed length at their mean rate
+    and specific force (:func:`defer_cov`), with the attitude they end at; x unchanged."""
+    T = x[X_PDT]
+    e, sh = _qexp_half(x[X_PW], x[X_PW + 1], x[X_PW + 2])
+    _cov_es(cfg, prm, x, P, work, x[X_PW] / T, x[X_PW + 1] / T, x[X_PW + 2] / T,
+            x[X_PF] / T, x[X_PF + 1] / T, x[X_PF + 2] / T, T, e[0], sh)
+
+
+@njit(inline="always", **_JIT_CORE)
+def flush_cov(cfg, prm, x, P, work):
+    """The pending steps' covariance prediction done (:func:`cov_pending`) and the pending
+    step emptied; nothing when none is pending."""
+    if x[X_PN] == 0.0:
+        return
+    cov_pending(cfg, prm, x, P, work)
+    for i in range(X_PF + 3 - X_PN):
+        x[X_PN + i] = 0.0
 
 
 @njit(inline="always", **_JIT_CORE)

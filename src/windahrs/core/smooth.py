@@ -684,6 +684,9 @@ def forward_record(est: Any, flight: Flight, initial: InitialState | None = None
 
     run = est.prepare(flight, initial, cov="none", cov_every=1)  # (the outputs: 13 floats a sample)
     st, N, dim = run.st, len(flight.imu.t), run.layout.dim
+    # every IMU step's covariance predicted at its sample (not once per predict.COV_PERIOD_S):
+    # the backward pass recomputes each step's prior from the posterior before it
+    st.cfg["cov_defer"] = 0
     if st.cfg["add_form"] != 0 or st.cfg["n"] != dim:
         raise ValueError(f"smoothing {est.label!r}: not an error-state filter")
     need = smooth_bytes(N, dim)

@@ -123,10 +123,12 @@ class InsWind(CompiledEstimator):
     #: 6.02 -> 2.26; the simulated flights without faults and the PX4 logs unchanged;
     #: docs/RESULTS.md section 35). A heading the gate would then keep out for good is turned
     #: to the field after reset_timeout (:func:`windahrs.aid.mag.heading_reset`).
+    #: The covariance predicted once per 10 ms over the IMU steps in it (cov_period), as PX4 EKF2
+    #: predicts at its filter update period (EKF2_PREDICT_US 10 000 us).
     default_params = EskfParams(
-        init_mag_bias=1e-6, mag_norm_gate=0.1, mag_dip_gate=float(np.radians(10.0)), gate_mag=3.0
+        init_mag_bias=1e-6, mag_norm_gate=0.1, mag_dip_gate=float(np.radians(10.0)), gate_mag=3.0, cov_period=0.01
     )
-    parts = (
+    parts: ClassVar[tuple[tuple[str, ...], ...]] = (
         process.ATTITUDE_PARAMS,
         process.HELD_SAMPLE_PARAMS,
         imu_screen.PARAMS,
@@ -134,6 +136,7 @@ class InsWind(CompiledEstimator):
         process.GYRO_SCALE_PARAMS,
         process.BIAS_WALK_PARAMS,
         process.INS_PARAMS,
+        process.COV_PERIOD_PARAMS,
         process.WIND_PARAMS,
         gnss_vel.PARAMS,
         mag.PARAMS,
@@ -154,3 +157,5 @@ class InsDrag(InsWind):
 
     name = "ins-drag"
     default_params = InsWind.default_params.replace(drag=True, wind_vertical=False)
+    #: (every IMU step's covariance predicted at its sample: the drag update reads P at every one)
+    parts = tuple(part for part in InsWind.parts if part is not process.COV_PERIOD_PARAMS)

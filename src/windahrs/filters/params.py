@@ -76,6 +76,8 @@ FIELD_MAX: dict[str, float] = {
                      "airspeed_scale_tas_sigma", "airspeed_scale_wind_noise"), _SPEED_OF_SOUND),
     # the inverse scale's spread and random walk: a pitot reads from nothing to a few times the airspeed
     **dict.fromkeys(("airspeed_scale_sigma", "airspeed_scale_noise"), 1.0),
+    # s: PX4 EKF2 takes EKF2_PREDICT_US from 1 000 to 20 000 us
+    "cov_period": 0.02,
 }
 
 
@@ -90,6 +92,8 @@ def check_magnitude(name: str, value: object, *, owner: str = "") -> None:
         unit = ""
         if name in ANGLE_FIELDS:
             unit = " rad (an angle)"
+        elif name == "cov_period":
+            unit = " s (PX4 EKF2_PREDICT_US's largest, 20 000 us)"
         elif name in FIELD_MAX:
             unit = " (the sensor's physical range)"
         raise ValueError(f"{where}: expected at most {top:.6g}{unit}, found {value!r}")
@@ -310,6 +314,18 @@ class EskfParams:
     such a step too. 0: every step (point samples at any rate); a value above every step
     (e.g. 1e9): never ([mekf], [mekf-air], [ins-wind], [ekf7], [ekf10]).
 
+    Covariance period ([ins-wind]). cov_period s: the nominal state is propagated at every
+    IMU sample and the covariance once over the samples of each period (their summed step at
+    their mean rate and specific force, with the attitude they end at), as PX4 EKF2 predicts
+    at its filter update period (``EKF2_PREDICT_US``, default 10 000 us, taken from 1 000 to
+    20 000). [ins-wind]'s default 0.01 s (the field's: 0, every sample's): a 200 Hz IMU's
+    covariance at 100 Hz, a 100 Hz one's at every sample as before; it changes the attitude
+    of the simulated 8 m/s flights by at most 3.4e-5 rad (docs/RESULTS.md section 46).
+    Anything that reads or changes the covariance (an update, a reset, the record) has it
+    brought up to date first. 0: every sample's.
+    Not with the drag aid ([ins-drag], ``drag=true``: its update reads the covariance at every
+    sample), nor in the smoothers (their backward pass recomputes each sample's prior).
+
     IMU screen (:mod:`windahrs.core.imu_screen`; the same filters): a sample is held, and
     the last propagated one propagated in its place, when an axis is beyond gyro_range rad/s
     or accel_range m/s^2 (defaults: the ranges beyond which the readers' edge repair sets a
@@ -398,6 +414,7 @@ class EskfParams:
     start_check: bool = True
     gated_start: bool = True
     unmeasured_motion_dt: float = 1.0 / 50.0
+    cov_period: float = 0.0
     gyro_range: float = GYRO_RANGE
     accel_range: float = ACCEL_RANGE
     imu_spike_gate: float = 8.0
@@ -487,6 +504,7 @@ PX4_MAP: dict[str, tuple[str, Callable[[float], float]]] = {
     "EKF2_MAG_GATE": ("gate_mag", float),
     "EKF2_MAG_B_NOISE": ("mag_bias_noise", lambda v: v * 1e-4 * math.sqrt(_PX4_DT)),  # gauss/s
     "EKF2_GPS_V_NOISE": ("gnss_sigma", float),
+    "EKF2_PREDICT_US": ("cov_period", lambda v: v * 1e-6),  # us
     "EKF2_GPS_V_GATE": ("gate_gnss", float),
     "EKF2_EAS_NOISE": ("tas_sigma", float),
     "EKF2_TAS_GATE": ("gate_air", float),
