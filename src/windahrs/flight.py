@@ -23,6 +23,7 @@ range), never at one sample: a single spike is a glitch, not a unit.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -200,6 +201,12 @@ class ImuStream:
         _set(self, "t", t)
         _set(self, "w_b", w)
         _set(self, "f_b", f)
+
+    @functools.cached_property
+    def period(self) -> float:
+        """The median step of ``t``, s (NaN for fewer than two samples), computed once: the
+        checks after every run read it (50 us a minute of a 200 Hz stream)."""
+        return float(np.median(np.diff(self.t))) if len(self.t) > 1 else math.nan
 
 
 @dataclass(frozen=True)

@@ -443,7 +443,7 @@ class Auto(Estimator):
         closed = gate_closed(lane) & ~early
         take = early | closed
         est, held = _spliced(before, lane, take, flight)
-        dt = float(np.median(np.diff(flight.imu.t))) if len(flight.imu.t) > 1 else 0.0
+        dt = flight.imu.period if len(flight.imu.t) > 1 else 0.0
         reason = (f"GNSS velocity without a magnetometer: {choice.spec}'s tilt with the INS's heading until "
                   f"{t_h:.2f} s, the INS after (once it knew its heading to {sig}), but for its tilt while its "
                   "GNSS gate is closed")

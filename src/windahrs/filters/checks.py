@@ -96,7 +96,7 @@ def tilt_alerts(
         return np.empty((0, 3))
     # every sample's specific force, rotated at CHECK_RATE_HZ (the mean's tau is seconds): the
     # block means of the samples, rotated with the block's middle attitude
-    dt = float(np.median(np.diff(t)))
+    dt = imu.period  # (t is the flight's IMU times: the stream's median step, computed once)
     step = max(1, int(1.0 / (CHECK_RATE_HZ * dt)))
     if len(t) < step:  # not one block (a flight shorter than 1 / CHECK_RATE_HZ): nothing to check
         return np.empty((0, 3))
