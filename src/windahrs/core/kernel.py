@@ -407,9 +407,9 @@ def mag_ready(cfg, prm, x, flags, P, work, row):
 def cov_deferred(cfg, prm, rs, dt):
     """Whether an IMU step of dt s (> 0) leaves its covariance prediction to the period's
     (cov_period, :func:`~windahrs.core.predict.defer_cov`): in a filter that defers (cfg
-    cov_defer: the INS without drag, cov_period > 0), a step no longer than unmeasured_motion_dt (a longer one adds its
-    held-sample noise to P at once) while no rest update may read P (rest detection off, or
-    its start's rest over: rs["n"] < 0)."""
+    cov_defer: the INS without drag, cov_period > 0), a step no longer than
+    unmeasured_motion_dt (a longer one adds its held-sample noise to P at once) while no rest
+    update may read P (rest detection off, or its start's rest over: rs["n"] < 0)."""
     return (cfg["cov_defer"] == 1 and dt <= prm["unmeasured_motion_dt"]
             and (cfg["rest"] == REST_OFF or rs["n"] < 0.0))
 
