@@ -124,7 +124,7 @@ def _predict_es(cfg, prm, x, P, work, wmx, wmy, wmz, fmx, fmy, fmz, dt):
     (:func:`_nominal_es`), then the covariance (:func:`_cov_es`). Returns the step's turn
     Exp((w_m - b_g) dt) (the kernel turns its low-passed means with it)."""
     e, sh, wx, wy, wz, fx, fy, fz = _nominal_es(cfg, prm, x, wmx, wmy, wmz, fmx, fmy, fmz, dt)
-    _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e[0], sh)
+    _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e[0], sh, dt)
     return e
 
 
@@ -150,12 +150,14 @@ def _nominal_es(cfg, prm, x, wmx, wmy, wmz, fmx, fmy, fmz, dt):
 
 
 @njit(**_JIT_FMA)
-def _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e0, sh):
+def _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e0, sh, dts):
     """The error-state covariance over a step of dt s at the bias-corrected rate w and
     specific force f, with the attitude the step ends at (x's), ``Phi P Phi^T + Q``, using
     Phi's block structure: only the attitude (and velocity) rows and columns of P change
     before Q is added (layout: att 0..2, v 3..5). The 3x3 blocks of Phi live in local
-    scalars. e0, sh: the cosine and sine of half the turn's angle |w| dt."""
+    scalars. e0, sh: the cosine and sine of half the turn's angle |w| dt. dts: the IMU's
+    sample step, s (dt, or its mean over the steps of a period): the accelerometer noise
+    measured per sample becomes a density at it (:func:`ins_accel_density2`)."""
     n, ib, iv, iw, iba = cfg["n"], cfg["i_bg"], cfg["i_v"], cfg["i_w"], cfg["i_ba"]
     M, X = work[W_M : W_M + 8], work[W_X : W_X + 8]
     w = cfg["rows"]  # the columns of M's rows (below)
@@ -295,7 +297,7 @@ def _cov_es(cfg, prm, x, P, work, wx, wy, wz, fx, fy, fz, dt, e0, sh):
     qaa = sg2 * dt + sb2 * dt**3 / 3.0
     qab = -sb2 * dt**2 / 2.0
     qbb = sb2 * dt
-    sa2 = ins_accel_density2(cfg, prm, x, dt) if iv >= 0 else prm["accel_noise2"]
+    sa2 = ins_accel_density2(cfg, prm, x, dts) if iv >= 0 else prm["accel_noise2"]
     if prm["gyro_bias_noise_dv2"] != 0.0:  # the bias's walk about the vertical: its own density
         _bias_walk_vertical(x, P, ib, prm["gyro_bias_noise_dv2"], dt)
     for k in range(3):
@@ -343,7 +345,7 @@ def cov_pending(cfg, prm, x, P, work):
     T = x[X_PDT]
     e, sh = _qexp_half(x[X_PW], x[X_PW + 1], x[X_PW + 2])
     _cov_es(cfg, prm, x, P, work, x[X_PW] / T, x[X_PW + 1] / T, x[X_PW + 2] / T,
-            x[X_PF] / T, x[X_PF + 1] / T, x[X_PF + 2] / T, T, e[0], sh)
+            x[X_PF] / T, x[X_PF + 1] / T, x[X_PF + 2] / T, T, e[0], sh, T / x[X_PN])
 
 
 @njit(inline="always", **_JIT_CORE)
