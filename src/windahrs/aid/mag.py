@@ -311,7 +311,7 @@ def heading_reset(cfg, prm, x, flags, P, work, inn, acc, t, mx, my, mz, rx, ry):
         ins = cfg["kind"] == KIND_INS
         if ins and (heading_seen_by_gnss(prm, x) or not spend_heading_reset(flags)):
             return False
-        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0)))
+        _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, _turn_to(rx, ry, n0, n1))
         if ins:
             _restart_heading_tied(cfg, prm, flags, P)
         return True
@@ -347,11 +347,18 @@ def _nav_horizontal(cfg, x, mx, my, mz):
 
 
 @njit(inline="always", **_JIT_CORE)
+def _turn_to(rx, ry, n0, n1):
+    """The rotation about the nav vertical, rad, that turns the horizontal field (n0, n1)
+    onto the reference's (rx, ry)."""
+    return _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
+
+
+@njit(inline="always", **_JIT_CORE)
 def _heading_offset(cfg, x, mx, my, mz, rx, ry):
     """The rotation about the nav vertical, rad, that turns the field sample m (body; less
     the hard iron when estimated) onto the reference's heading."""
     n0, n1 = _nav_horizontal(cfg, x, mx, my, mz)
-    return _wrap_pi(math.atan2(ry, rx) - math.atan2(n1, n0))
+    return _turn_to(rx, ry, n0, n1)
 
 
 @njit(**_JIT_CORE)
