@@ -104,6 +104,7 @@ SCREEN_FIELDS: tuple[tuple[str, int, str], ...] = (
 )
 SCREEN_COUNT_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("held", 1, "the last sample's held parts: 1 its angular rate, 2 its specific force, 3 both"),
+    ("run", 1, "samples in a row, up to the last one, that had a part held"),
     ("clip", 6, "samples in a row each axis has repeated one large magnitude"),
 )
 SCREEN = np.dtype(record_dtype(SCREEN_FIELDS).descr + record_dtype(SCREEN_COUNT_FIELDS, np.int64).descr)
@@ -183,9 +184,12 @@ def screen_imu(cfg, prm, x, flags, sc, P, inn, acc, work, t, row):
     gf2 = max(FLOOR_F * FLOOR_F, k * k * sc["sf2"])
     dw2, df2 = _change2(row, x, 0, X_WLAST), _change2(row, x, 3, X_FLAST)
     if sc["held"] > 0:
-        # the held sample: a spike if this one is back near the last propagated sample,
-        # else motion, caught up now
-        cw, cf = sc["held"] & 1 != 0 and dw2 > gw2, sc["held"] & 2 != 0 and df2 > gf2
+        # the held sample: a spike if it was alone (the sample before it was propagated as
+        # it came) and this one is back near the last propagated sample; else motion, caught
+        # up now
+        lone = sc["run"] <= 1
+        cw = sc["held"] & 1 != 0 and (dw2 > gw2 or not lone)
+        cf = sc["held"] & 2 != 0 and df2 > gf2
         if cw or cf:
             _catch_up(cfg, x, flags, sc, sc["dt_pend"], cw, cf)
             inn[cfg["log_off"][INN_IMU] + flags[L_CNT + INN_IMU] - 1, 4] = 3.0  # its log row: motion
@@ -224,7 +228,9 @@ def screen_imu(cfg, prm, x, flags, sc, P, inn, acc, work, t, row):
         sc["sf2"] += g * (min(df2, gf2) - sc["sf2"])
     if not (hold_w or hold_f):
         sc["held"] = 0
+        sc["run"] = 0
         return False
+    sc["run"] = sc["run"] + 1 if sc["held"] > 0 else 1
     nu = work[W_NU]
     nu[0], nu[1], nu[2] = math.sqrt(dw2), math.sqrt(df2), 0.0
     reason = 1.0 if (beyond_w or beyond_f) else 2.0  # (in the NIS column; 3: set when caught up)
