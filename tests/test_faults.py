@@ -147,6 +147,20 @@ def test_stamp_faults_refused_as_flight_and_repaired_from_csv(flight: Flight, tm
     np.testing.assert_allclose(back.imu.w_b, flight.imu.w_b, rtol=1e-12)
 
 
+def test_first_change_is_when_the_faults_began_to_act(flight: Flight) -> None:
+    """The onset the matrix counts a flag's delay from: a value fault's start, the first
+    duplicated or swapped stamp of a stamp fault (at random in its span), None for none."""
+    assert F.inject_raw(flight, [F.GyroSpike(start=3.0)], seed=0).first_change() == pytest.approx(3.0, abs=0.01)
+    assert F.inject_raw(flight, [F.GnssOutage(start=2.0, duration=1.0)], seed=0).first_change() == pytest.approx(
+        2.0, abs=0.11
+    )
+    raw = F.inject_raw(flight, [F.DuplicateStamps(start=2.0, duration=4.0, count=2)], seed=1)
+    dup = raw.imu["t"][1:][np.diff(raw.imu["t"]) == 0]
+    assert raw.first_change() == pytest.approx(dup.min()) and dup.min() > 2.0
+    same = F.inject_raw(flight, [F.GyroSaturation(start=2.0, duration=1.0, limit=100.0)], seed=0)
+    assert same.first_change() is None
+
+
 @pytest.mark.parametrize(
     ("make", "field"),
     [
@@ -227,7 +241,18 @@ def test_matrix_row_on_a_tiny_flight() -> None:
     res = run_fault_matrix("fixedwing", ["mekf"], duration=6.0, seed=1, cases=[case])
     (row,) = res.rows
     assert row.fault == "spike" and row.filter == "mekf" and row.nan_count == 0
-    assert row.max_during_deg > row.rms_during_deg > 0 and row.t_start_s == 3.0
+    assert row.max_during_deg > row.rms_during_deg > 0 and row.t_start_s == 3.0 and row.t_onset_s == 3.0
+
+
+def test_a_stamp_fault_is_flagged_from_its_first_bad_stamp() -> None:
+    """Five duplicated stamps at random in 10 s: the flag's delay counts from the first (on
+    seeds 2-5 of the matrix it came after the span's first second, and the case read as not
+    flagged)."""
+    case = FaultCase("dup", (F.DuplicateStamps(start=2.0, duration=6.0, count=3),), edge=True)
+    res = run_fault_matrix("fixedwing", ["mekf"], duration=10.0, seed=4, cases=[case])
+    (row,) = res.rows
+    assert row.t_onset_s > row.t_start_s + 1.0  # (seed 4: the first duplicate after 1 s)
+    assert row.flagged and row.flag_source == "flag:stamps_repaired" and row.flag_delay_s < 0.1
 
 
 def test_a_fault_that_changes_no_sample_is_left_out_of_the_counts() -> None:

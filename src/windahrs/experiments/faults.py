@@ -17,7 +17,10 @@ spans):
   rms_before or, for a fault without a pre-fault window, the clean run's RMS over
   ``[t1, t1 + 10 s]``; None when it never is within the flight.
 * ``flagged``, ``flag_delay_s``, ``flag_source``: :func:`first_flag` within
-  :data:`FLAG_WINDOW_S` of the start (issue 13's criterion).
+  :data:`FLAG_WINDOW_S` of the fault's onset ``t_onset_s`` (issue 13's criterion), the
+  first sample the case changed (:meth:`windahrs.sim.faults.RawFlight.first_change`): the
+  span's start, but for the stamp faults, whose duplicated or swapped samples fall at
+  random in their span, the first of those.
 * ``flagged_span``, ``span_flag_delay_s``, ``span_flag_source``: the same within the case's
   span (at least :data:`FLAG_WINDOW_S`): a slow fault (a drifting field, a ramping pitot)
   shows nothing in its first second, and the repaired stamps of ``duplicate-stamps`` and
@@ -182,6 +185,7 @@ class FaultRow:
     vehicle: str = ""
     t_start_s: float = 0.0
     t_end_s: float = 0.0
+    t_onset_s: float = 0.0
     flag_source: str | None = None
     rmse_deg: float = math.nan
     rmse_clean_deg: float = math.nan
@@ -331,11 +335,20 @@ def recovery_time(t: F64, e: F64, t1: float, threshold: float, window: float = R
 
 
 def score_fault(
-    est: Estimate, clean: Estimate, flight: Flight, faulty: Flight, case: FaultCase, vehicle: str = ""
+    est: Estimate,
+    clean: Estimate,
+    flight: Flight,
+    faulty: Flight,
+    case: FaultCase,
+    vehicle: str = "",
+    onset: float | None = None,
 ) -> FaultRow:
     """One row: ``est`` (run on ``faulty``) against ``flight``'s truth around the case's span,
-    with ``clean`` (the same filter on ``flight``) for the flags and the recovery reference."""
+    with ``clean`` (the same filter on ``flight``) for the flags and the recovery reference;
+    ``onset``: the first sample the case changed, s (default the span's start), from which
+    the flag's delay is counted."""
     t0, t1 = case.span
+    ton = t0 if onset is None else onset
     t, e = _errors_deg(est, flight)
     tc, ec = _errors_deg(clean, flight)
     before = (t >= max(t0 - BEFORE_S, SETTLE_S)) & (t < t0)
@@ -348,7 +361,7 @@ def score_fault(
         during = t == t[np.searchsorted(t, t0).clip(max=len(t) - 1)]
     ed = e[during]
     after = t >= t1 + RECOVERY_ALLOWANCE_S
-    flag_t, source = first_flag(est, clean, t0, flight=faulty)
+    flag_t, source = first_flag(est, clean, ton, flight=faulty)
     span_t, span_source = first_flag(est, clean, t0, window=max(t1 - t0, FLAG_WINDOW_S), flight=faulty)
     recover = recovery_time(t, e, t1, 2.0 * ref) if ref is not None else None
     return FaultRow(
@@ -356,7 +369,7 @@ def score_fault(
         filter=est.filter,
         nan_count=nan_rows(est),
         flagged=flag_t is not None,
-        flag_delay_s=None if flag_t is None else flag_t - t0,
+        flag_delay_s=None if flag_t is None else flag_t - ton,
         recover_s=recover,
         rms_before_deg=rms_before,
         rms_during_deg=_rms(ed) or math.nan,
@@ -365,6 +378,7 @@ def score_fault(
         vehicle=vehicle,
         t_start_s=t0,
         t_end_s=t1,
+        t_onset_s=ton,
         flag_source=source,
         rmse_deg=score(est, flight).rmse_total_deg,
         rmse_clean_deg=score(clean, flight).rmse_total_deg,
@@ -379,16 +393,18 @@ def score_fault(
 # the matrix
 
 
-def _faulty_flight(flight: Flight, case: FaultCase, seed: int) -> Flight:
+def _faulty_flight(flight: Flight, case: FaultCase, seed: int) -> tuple[Flight, float | None]:
+    """The case injected into ``flight``, and its onset (None: it changed no sample)."""
     raw = inject_raw(flight, case.faults, seed=seed)
+    onset = raw.first_change()
     if not case.edge:
-        return raw.to_flight()
+        return raw.to_flight(), onset
     from windahrs.io import read_flight
 
     with tempfile.TemporaryDirectory(prefix="windahrs-faults-") as d:
         repaired = read_flight(raw.write_csv_dir(Path(d) / "flight"))
     # the reader rebuilt the streams; the truth is the simulation's, as for the other cases
-    return repaired.replace(truth=flight.truth, reference=None, site=flight.site)
+    return repaired.replace(truth=flight.truth, reference=None, site=flight.site), onset
 
 
 def _available(flight: Flight, case: FaultCase) -> str | None:
@@ -456,12 +472,12 @@ def run_fault_matrix(
                 if progress is not None:
                     progress(done, total, f"{case.name} not applicable")
                 continue
-            faulty = _faulty_flight(flight, case, seed)
+            faulty, onset = _faulty_flight(flight, case, seed)
             same = unchanged(flight, faulty)
             for spec, est in estimators:
                 if spec in clean:
                     out = est.run(faulty)
-                    row = score_fault(out, clean[spec], flight, faulty, case, vehicle)
+                    row = score_fault(out, clean[spec], flight, faulty, case, vehicle, onset)
                     res.rows.append(_relabel(row, spec, same))
                 done += 1
                 if progress is not None:

@@ -146,6 +146,35 @@ class RawFlight:
         out: dict[str, F64] | None = getattr(self, name)
         return out
 
+    def first_change(self) -> float | None:
+        """The time of the first sample, in any stream, that differs from the original
+        flight's (a value, a stamp, a sample added or removed; NaN equal to NaN): when the
+        faults began to act, which a fault placed at random in its span (a duplicated
+        stamp) does after the span's start. None when they changed nothing."""
+        first: float | None = None
+        orig = RawFlight.of(self.flight)
+        for name in ("imu", "mag", "gnss", "air"):
+            new, old = self.stream(name), orig.stream(name)
+            if new is None or old is None:
+                continue
+            n = min(len(new["t"]), len(old["t"]))
+            differ = np.zeros(n, dtype=bool)
+            for key in set(new) | set(old):
+                a, b = new.get(key), old.get(key)
+                if a is None or b is None:
+                    continue
+                a2, b2 = a[:n].reshape(n, -1), b[:n].reshape(n, -1)
+                differ |= ~((a2 == b2) | (np.isnan(a2) & np.isnan(b2))).all(axis=1)
+            idx = np.flatnonzero(differ)
+            if len(idx):
+                t = float(min(new["t"][idx[0]], old["t"][idx[0]]))
+            elif len(new["t"]) != len(old["t"]):
+                t = float((new["t"] if len(new["t"]) > n else old["t"])[n])
+            else:
+                continue
+            first = t if first is None else min(first, t)
+        return first
+
     def to_flight(self) -> Flight:
         """The streams as a Flight with the original truth, site and meta (meta["faults"]
         lists the faults applied). Raises :class:`FaultError` when the Flight constructor
