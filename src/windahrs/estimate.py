@@ -310,6 +310,9 @@ class Estimate:
                 }.get(sensor, "more than 45 deg off the state")
                 if sensor == "mag" and self.v_n is not None and self.wind_n is not None:  # an INS's (aid.mag)
                     what += ", wind restarted from the next air sample"
+                if sensor == "air":  # (aid.air_vector.reset_wind)
+                    why = "rejected while GNSS held the velocity"
+                    what = f"wind restarted from it, by {size:.1f} m/s"
                 out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "

@@ -3,10 +3,15 @@ pitot and both vanes: 3 rows with the Jacobian of :mod:`windahrs.aid.air_velocit
 ``R = J diag(tas_sigma^2, vane_sigma^2, vane_sigma^2) J^T (+ gnss_sigma^2 I when the GNSS
 velocity is an input, [mekf-air])``, J the Jacobian of V_air^b on (tas, aoa, sideslip).
 Gate: gate_air sigmas per component. Also the wind's initial value from the first air
-sample, ``W = V - C_nb V_air``. Innovation key: ``"air"`` (3 rows).
+sample, ``W = V - C_nb V_air``, and the wind's reset to the same once the air data has been
+kept out by its gate for reset_timeout while GNSS held the velocity (:func:`wind_lost`,
+:func:`reset_wind`; for every air aid source, the airspeed's too). Innovation key: ``"air"``
+(3 rows).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -20,11 +25,16 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_AIR,
+    INN_GNSS,
+    S_VGNSS,
     S_WPEND,
     W_NU,
     W_R,
     W_T,
     X_Q,
+    X_TAIR,
+    X_TGNSS,
+    X_TOK,
     X_V,
     X_VAIR,
     X_VGNSS,
@@ -33,9 +43,51 @@ from windahrs.core.layout import (
 from windahrs.core.quat import (
     _dcm9,
 )
+from windahrs.core.reset import accepted_at, log_reset, reopen, timed_out
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = ("air_mode", "tas_sigma", "vane_sigma", "gate_air")
+#: The oldest GNSS velocity, s, that still holds the velocity for a wind reset (:func:`wind_lost`):
+#: PX4 EKF2's GNSS_MAX_INTERVAL, the longest it waits for a GNSS sample (windahrs.flags'
+#: ABSENT_MIN_S).
+GNSS_FRESH = 0.5
+
+
+@njit(inline="always", **_JIT_CORE)
+def air_clock(prm, x, t):
+    """A sample about to be offered to the gate at t s: after none for reset_timeout (an
+    outage, or a vehicle too slow to fuse its airspeed) the wind reset's clock restarts, the
+    sensor was absent, not kept out (as the GNSS clock, aid.gnss_vel.remember_gnss)."""
+    if t - x[X_TAIR] > prm["reset_timeout"]:
+        accepted_at(x, np.int64(INN_AIR), t)
+    x[X_TAIR] = t
+
+
+@njit(inline="always", **_JIT_CORE)
+def wind_lost(cfg, prm, x, flags, t):
+    """Whether the air data has been kept out by its gate for reset_timeout while the
+    velocity is known: the wind is what is wrong, and the gate, trusting it, would keep the
+    air data out until the wind's random walk had reopened it (24 s after the fault matrix's
+    gyro saturation, seed 3). The velocity is known when the last GNSS sample is at most
+    GNSS_FRESH s old and, in an INS, was accepted by its gate (it agreed with the state)."""
+    if cfg["i_w"] < 0 or flags[S_VGNSS] == 0 or t - x[X_TGNSS] > GNSS_FRESH:
+        return False
+    if cfg["i_v"] >= 0 and x[X_TOK + INN_GNSS] != x[X_TGNSS]:
+        return False
+    return timed_out(prm, x, np.int64(INN_AIR), t)
+
+
+@njit(**_JIT_CORE)
+def reset_wind(cfg, prm, x, flags, P, work, inn, acc, t, use_v, vanes):
+    """The wind from this air sample, ``W = V - C_nb V_air``, its spread reopened
+    (init_wind, init_wind_vertical): PX4 EKF2 likewise resets its wind to the airspeed
+    (``resetWindUsingAirspeed``) once airspeed fusion has failed for 10 s with other aiding
+    holding the velocity; logged as a reset of the air data (its size: the wind's change, m/s)."""
+    w0, w1, w2 = x[X_W], x[X_W + 1], x[X_W + 2]
+    init_wind(x, flags, use_v, vanes)
+    reopen(cfg, P, cfg["i_w"], prm["init_wind_var"], prm["init_wind_vertical_var"])
+    dw = math.sqrt((x[X_W] - w0) ** 2 + (x[X_W + 1] - w1) ** 2 + (x[X_W + 2] - w2) ** 2)
+    log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_AIR), t, dw)
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -53,7 +105,8 @@ def init_wind(x, flags, use_v, vanes):
 @njit(inline="always", **_JIT_CORE)
 def fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra):
     """Fuse the air-relative velocity of the sample (X_VAIR; tas m/s, cos/sin of aoa and
-    sideslip) at t s; extra: variance added per axis (m/s)^2."""
+    sideslip) at t s; extra: variance added per axis (m/s)^2. Returns whether the gate
+    accepted it."""
     nu, R = work[W_NU], work[W_R : W_R + 3]
     ns = np.int64(0)
     y0 = y1 = y2 = 0.0
@@ -71,4 +124,4 @@ def fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, 
         for l in range(3):
             r = J[k, 0] * d0 * J[l, 0] + J[k, 1] * d1 * J[l, 1] + J[k, 2] * d1 * J[l, 2]
             R[k, l] = r + extra if k == l else r
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AIR), t, np.int64(3), ns, prm["gate_air2"])
+    return _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_AIR), t, np.int64(3), ns, prm["gate_air2"])

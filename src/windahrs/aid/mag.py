@@ -58,6 +58,7 @@ from windahrs.core.layout import (
     X_Q,
     X_TMBAR,
     X_TMFUSE,
+    X_TMOK,
     X_TOK,
 )
 from windahrs.core.predict import (
@@ -228,7 +229,8 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
             nsup = _bias_rows(work, sup[0], ibm, nsup)
         nu[0], nu[1], nu[2] = mx - h0, my - h1, mz - h2
         m, ns = np.int64(3), np.int64(nsup)
-        _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_mag2"] * kf)
+        if _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["gate_mag2"] * kf):
+            x[X_TMOK] = t
         per_sample_nis(cfg, flags, inn, sensor, kf)
         return
     sigma = prm["mag_sigma"] / max(math.hypot(rx, ry), 1e-9)

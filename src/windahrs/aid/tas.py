@@ -31,7 +31,8 @@ PARAMS = ("air_mode", "tas_sigma", "gate_air")
 
 @njit(inline="always", **_JIT_CORE)
 def fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra):
-    """Fuse the airspeed tas m/s at t s; extra: variance added (m/s)^2."""
+    """Fuse the airspeed tas m/s at t s; extra: variance added (m/s)^2. Returns whether the
+    gate accepted it."""
     nu, R = work[W_NU], work[W_R : W_R + 3]
     y0, y1, y2, ns = _air_rows(cfg, x, work, sup[0], use_v, 0.0, 0.0, 0.0, np.int64(0))
     a = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
@@ -40,4 +41,4 @@ def fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra):
     work[W_H, 0], work[W_H, 1], work[W_H, 2] = 0.0, 0.0, 0.0
     nu[0] = tas - a
     R[0, 0] = prm["tas_var"] + extra
-    _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_TAS), t, np.int64(1), ns, prm["gate_air2"])
+    return _fuse(cfg, x, flags, P, work, sup, inn, acc, np.int64(INN_TAS), t, np.int64(1), ns, prm["gate_air2"])

@@ -20,8 +20,11 @@ import numpy as np
 from numba import njit
 
 from windahrs.aid.air_vector import (
+    air_clock,
     fuse_air_vector,
     init_wind,
+    reset_wind,
+    wind_lost,
 )
 from windahrs.aid.air_velocity import (
     remember_air,
@@ -75,6 +78,7 @@ from windahrs.core.layout import (
     COMP_NONE,
     F64,
     I64,
+    INN_AIR,
     K_SKIP,
     KIND_INS,
     KIND_MEKF,
@@ -128,8 +132,10 @@ from windahrs.core.layout import (
     X_PN,
     X_Q,
     X_RM,
+    X_TGOK,
     X_TIMU,
     X_TINIT,
+    X_TMOK,
     X_TOK,
     X_TWIN0,
     X_V,
@@ -157,7 +163,7 @@ from windahrs.core.quat import (
     _triad,
     _xi_into,
 )
-from windahrs.core.reset import attitude_cov_about_vertical, set_attitude_cov
+from windahrs.core.reset import accepted_at, attitude_cov_about_vertical, set_attitude_cov
 from windahrs.core.smooth import no_smoothing, record_post, record_pre
 from windahrs.estimate import Estimate, Innovations
 from windahrs.filters.base import (
@@ -530,12 +536,17 @@ def step_air(cfg, prm, x, flags, P, work, sup, inn, acc, ac, t, tas, aoa, beta):
         x[X_VAIR], x[X_VAIR + 1], x[X_VAIR + 2] = f * x[X_VAIR], f * x[X_VAIR + 1], f * x[X_VAIR + 2]
         tas = tc
         extra_tas = extra + var_scale
+    air_clock(prm, x, t)
     if flags[S_WPEND] == 1:
         init_wind(x, flags, use_v, vanes)
+    elif wind_lost(cfg, prm, x, flags, t):
+        reset_wind(cfg, prm, x, flags, P, work, inn, acc, t, use_v, vanes)
     if vector:
-        fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra_tas)
+        if fuse_air_vector(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, ca, sa, cb, sb, use_v, extra_tas):
+            accepted_at(x, np.int64(INN_AIR), t)
         return
-    fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra_tas)
+    if fuse_tas(cfg, prm, x, flags, P, work, sup, inn, acc, t, tas, use_v, extra_tas):
+        accepted_at(x, np.int64(INN_AIR), t)
     if cfg["air_mode"] != AIR_AIRSPEED and np.isfinite(aoa):  # one vane: its angle of attack alone
         fuse_aoa(cfg, prm, x, flags, P, work, sup, inn, acc, t, aoa, tas, use_v, extra)
     if cfg["synthetic_sideslip"] == 1:  # at the state after the airspeed update
@@ -895,6 +906,7 @@ def make_state(
     flags[L_FIRST : L_FIRST + N_SENSORS] = -1
     x = np.zeros(N_X)
     x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
+    x[X_TMOK] = x[X_TGOK] = -np.inf  # no field nor GNSS velocity fused yet
     x[X_TINIT] = np.nan  # not initialised
     return KernelState(
         cfg=cfg,

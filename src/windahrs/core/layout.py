@@ -363,7 +363,13 @@ X_PN = X_AVAR + 42
 X_PDT = X_AVAR + 43
 X_PW = X_AVAR + 44
 X_PF = X_AVAR + 47
-N_X = X_AVAR + 50
+#: When the air-data aid source last offered a sample to its gate, s (aid.air_vector.air_clock).
+X_TAIR = X_AVAR + 50
+#: When the magnetometer's 3-D field last passed its gate (fused), s (aid.gnss_vel.reset_to_gnss).
+X_TMOK = X_AVAR + 51
+#: When GNSS velocity last passed its gate, s (-inf: never since the start; aid.gnss_vel).
+X_TGOK = X_AVAR + 52
+N_X = X_AVAR + 53
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0
