@@ -294,6 +294,8 @@ class Estimate:
                     what = f"velocity reset to it by {size:.1f} m/s; attitude levelled, biases and wind restarted"
                     if self._heading_retaken_after(t):
                         what += ", heading turned to the next magnetometer sample"
+                elif sensor == "air":  # (aid.air_vector.reset_wind)
+                    what = f"wind restarted from it, by {size:.1f} m/s"
                 else:
                     what = f"state reset to it by {size:.3g}"
                 if not np.isfinite(out_for):  # the heading unknown: a start without it, a GNSS reset
@@ -307,12 +309,10 @@ class Estimate:
                 why = {
                     "gnss": "rejected",
                     "accel": "off the state (by more than 45 deg, or 25 deg at gravity's length)",
+                    "air": "rejected while GNSS held the velocity",
                 }.get(sensor, "more than 45 deg off the state")
                 if sensor == "mag" and self.v_n is not None and self.wind_n is not None:  # an INS's (aid.mag)
                     what += ", wind restarted from the next air sample"
-                if sensor == "air":  # (aid.air_vector.reset_wind)
-                    why = "rejected while GNSS held the velocity"
-                    what = f"wind restarted from it, by {size:.1f} m/s"
                 out.append(f"{self.filter}: {sensor} {why} for {out_for:.1f} s; at t = {t:.2f} s {what}")
         for t0, t1, deg in self.alerts.get("tilt", ()):
             out.append(f"{self.filter}: tilt disagrees with the mean specific force by up to {deg:.0f} deg "

@@ -43,7 +43,7 @@ from windahrs.core.layout import (
 from windahrs.core.quat import (
     _dcm9,
 )
-from windahrs.core.reset import accepted_at, log_reset, reopen, timed_out
+from windahrs.core.reset import log_reset, reopen, restart_after_absence, timed_out
 
 #: The parameters of this aid source (fields of :class:`windahrs.filters.params.EskfParams`).
 PARAMS = ("air_mode", "tas_sigma", "vane_sigma", "gate_air")
@@ -56,10 +56,9 @@ GNSS_FRESH = 0.5
 @njit(inline="always", **_JIT_CORE)
 def air_clock(prm, x, t):
     """A sample about to be offered to the gate at t s: after none for reset_timeout (an
-    outage, or a vehicle too slow to fuse its airspeed) the wind reset's clock restarts, the
-    sensor was absent, not kept out (as the GNSS clock, aid.gnss_vel.remember_gnss)."""
-    if t - x[X_TAIR] > prm["reset_timeout"]:
-        accepted_at(x, np.int64(INN_AIR), t)
+    outage, or a vehicle too slow to fuse its airspeed) the wind reset's clock restarts
+    (:func:`~windahrs.core.reset.restart_after_absence`, as the GNSS clock's)."""
+    restart_after_absence(prm, x, np.int64(INN_AIR), t, x[X_TAIR])
     x[X_TAIR] = t
 
 

@@ -98,6 +98,7 @@ from windahrs.core.reset import (
     reopen,
     reset_gyro_bias,
     restart,
+    restart_after_absence,
     set_attitude_cov,
     timed_out,
 )
@@ -131,8 +132,8 @@ def remember_gnss(prm, x, flags, t, row):
     mean over LEVEL_TAU, the INS reset's levelling). The first sample after an outage longer
     than reset_timeout restarts the reset's clock: the sensor was absent, not kept out by its
     gate (PX4 EKF2 likewise times its GNSS fusion out only while it has samples to fuse)."""
-    if flags[S_VGNSS] == 1 and t - x[X_TGNSS] > prm["reset_timeout"] and flags[S_INIT] == 1:
-        accepted_at(x, np.int64(INN_GNSS), t)
+    if flags[S_VGNSS] == 1 and flags[S_INIT] == 1:
+        restart_after_absence(prm, x, np.int64(INN_GNSS), t, x[X_TGNSS])
     if flags[S_VGNSS] == 1 and t > x[X_TGNSS]:
         dt = t - x[X_TGNSS]
         for a in range(3):

@@ -52,6 +52,15 @@ def timed_out(prm, x, sensor, t):
     return tout > 0 and t - x[X_TOK + sensor] > tout
 
 
+@njit(inline="always", **_JIT_CORE)
+def restart_after_absence(prm, x, sensor, t, t_last):
+    """A sample of ``sensor`` at t s, its previous one at t_last s: after none for longer than
+    reset_timeout (an outage) the reset's clock restarts at t, the sensor was absent, not kept
+    out by its gate (PX4 EKF2 likewise times a fusion out only while it has samples to fuse)."""
+    if t - t_last > prm["reset_timeout"]:
+        accepted_at(x, sensor, t)
+
+
 @njit(**_JIT_CORE)
 def log_reset(cfg, flags, inn, acc, work, x, sensor, t, size):
     """Log a reset to ``sensor`` at t s of the given size (rad or m/s) and restart its clock.
