@@ -25,7 +25,6 @@ from windahrs.core.kalman import (
 from windahrs.core.layout import (
     _JIT_CORE,
     INN_AIR,
-    INN_GNSS,
     S_VGNSS,
     S_WPEND,
     W_NU,
@@ -34,7 +33,7 @@ from windahrs.core.layout import (
     X_Q,
     X_TAIR,
     X_TGNSS,
-    X_TOK,
+    X_TGOK,
     X_V,
     X_VAIR,
     X_VGNSS,
@@ -68,10 +67,11 @@ def wind_lost(cfg, prm, x, flags, t):
     velocity is known: the wind is what is wrong, and the gate, trusting it, would keep the
     air data out until the wind's random walk had reopened it (24 s after the fault matrix's
     gyro saturation, seed 3). The velocity is known when the last GNSS sample is at most
-    GNSS_FRESH s old and, in an INS, was accepted by its gate (it agreed with the state)."""
+    GNSS_FRESH s old and, in an INS, passed its gate (it agreed with the state; X_TGOK, not
+    the reset clock, which restarts after an outage or a reset without a sample passing)."""
     if cfg["i_w"] < 0 or flags[S_VGNSS] == 0 or t - x[X_TGNSS] > GNSS_FRESH:
         return False
-    if cfg["i_v"] >= 0 and x[X_TOK + INN_GNSS] != x[X_TGNSS]:
+    if cfg["i_v"] >= 0 and x[X_TGOK] != x[X_TGNSS]:
         return False
     return timed_out(prm, x, np.int64(INN_AIR), t)
 
