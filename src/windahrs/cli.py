@@ -1390,5 +1390,19 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
+def entry() -> None:
+    """The console script: :func:`main`'s status is the exit status. After a Ctrl-C (130)
+    the process ends without Python's finalisation, once its line is out and the outputs
+    are discarded: an interrupt that cut numba's compiler off midway can leave objects whose
+    finalisers crash (exit status -11 after the interrupted line, once, in a test run that
+    compiled on both cores)."""
+    status = main()
+    if status == 130:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    sys.exit(status)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry()

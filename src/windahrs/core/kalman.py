@@ -207,21 +207,28 @@ def _inverse_small(S, Si, m):
 
 
 @njit(inline="always", **_JIT_CORE)
+def within_gate(nu, S, m, gate2):
+    """Whether each component of the innovation nu[:m] is within gate sigmas of its own
+    variance S[k, k] (``nu_k^2 <= gate^2 S_kk``; False for a NaN)."""
+    for k in range(m):
+        if not (nu[k] * nu[k] <= gate2 * S[k, k]):
+            return False
+    return True
+
+
+@njit(inline="always", **_JIT_CORE)
 def _gate(cfg, flags, inn, acc, nu, S, Si, sensor, t, m, gate2):
     """Si = S^-1, the NIS ``nu^T S^-1 nu`` and the gate (each component within gate sigmas,
     ``nu_k^2 <= gate^2 S_kk``: PX4 EKF2's test ratio), logged; returns whether accepted.
     Shared by the EKF update below and the unscented update of [usque]."""
     _inverse_small(S, Si, m)
     nis = 0.0
-    bad = 0
     for k in range(m):
         v = 0.0
         for l in range(m):
             v += Si[k, l] * nu[l]
         nis += nu[k] * v
-        if not (nu[k] * nu[k] <= gate2 * S[k, k]):
-            bad += 1
-    accepted = bad == 0
+    accepted = within_gate(nu, S, m, gate2)
     _log(cfg, flags, inn, acc, nu, sensor, t, m, nis, accepted)
     return accepted
 

@@ -136,6 +136,7 @@ from windahrs.core.layout import (
     X_TIMU,
     X_TINIT,
     X_TMOK,
+    X_TMREIN,
     X_TOK,
     X_TWIN0,
     X_V,
@@ -842,6 +843,7 @@ def make_state(
     prm["sideslip_var"] = p.sideslip_sigma**2
     prm["gate_accel2"] = p.gate_accel**2
     prm["gate_mag2"] = p.gate_mag**2
+    prm["mag_reentry_gate2"] = (p.mag_reentry_gate * p.gate_mag) ** 2
     prm["gate_gnss2"] = p.gate_gnss**2
     prm["gate_air2"] = p.gate_air**2
     # initial spreads: the given initial state's, else the parameters'
@@ -907,6 +909,7 @@ def make_state(
     x = np.zeros(N_X)
     x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
     x[X_TMOK] = x[X_TGOK] = -np.inf  # no field nor GNSS velocity fused yet
+    x[X_TMREIN] = -np.inf  # no magnetometer re-entry gate
     x[X_TINIT] = np.nan  # not initialised
     return KernelState(
         cfg=cfg,

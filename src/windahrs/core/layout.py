@@ -222,6 +222,7 @@ PRM_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("mag_sigma", 1, "mag_sigma, T"),
     ("mag_var", 1, "mag_sigma^2, T^2"),
     ("gate_mag2", 1, "gate_mag^2"),
+    ("mag_reentry_gate2", 1, "(mag_reentry_gate * gate_mag)^2"),
     ("mag_lowpass", 1, "mag_lowpass, s (0: raw samples)"),
     ("mag_fuse_dt", 1, "1 / mag_fuse_rate, s (0: the mean fused at every sample)"),
     ("mag_norm_gate", 1, "mag_norm_gate, share of the reference's norm (0: off)"),
@@ -369,7 +370,13 @@ X_TAIR = X_AVAR + 50
 X_TMOK = X_AVAR + 51
 #: When GNSS velocity last passed its gate, s (-inf: never since the start; aid.gnss_vel).
 X_TGOK = X_AVAR + 52
-N_X = X_AVAR + 53
+#: The magnetometer's re-entry gate (aid.mag.fuse_field): 1 when the last field sample offered
+#: to its gates was fused, else 0 (0 at the start and after a heading reset); the last time a
+#: sample was kept out by the full gate or the disturbance checks after a fused one, s, from
+#: which the re-entry gate holds for reset_timeout (-inf: none).
+X_MFUSED = X_AVAR + 53
+X_TMREIN = X_AVAR + 54
+N_X = X_AVAR + 55
 
 # flags (int64): which remembered values are set, log counters, skipped samples.
 S_INIT = 0

@@ -76,6 +76,7 @@ FIELD_MAX: dict[str, float] = {
                      "airspeed_scale_tas_sigma", "airspeed_scale_wind_noise"), _SPEED_OF_SOUND),
     # the inverse scale's spread and random walk: a pitot reads from nothing to a few times the airspeed
     **dict.fromkeys(("airspeed_scale_sigma", "airspeed_scale_noise"), 1.0),
+    "mag_reentry_gate": 1.0,  # a share of gate_mag
     # s: PX4 EKF2 takes EKF2_PREDICT_US from 1 000 to 20 000 us
     "cov_period": 0.02,
 }
@@ -244,7 +245,13 @@ class EskfParams:
     left at 0 (the ANSFL reader: :data:`windahrs.io.ansfl.ANSFL_GNSS_TIMING_SIGMA`).
 
     Gates: a measurement is rejected when a component's innovation exceeds ``gate`` of its
-    standard deviation (PX4's test ratio), per sensor.
+    standard deviation (PX4's test ratio), per sensor. mag_reentry_gate, a share of gate_mag:
+    once a field sample that followed a fused one is kept out (a disturbance), the next must
+    be within mag_reentry_gate * gate_mag sigmas to be fused, until one is or reset_timeout
+    has passed since the last beyond gate_mag (1: no re-entry gate). Default 0.5: at
+    [ins-wind]'s gate_mag 3 (PX4's), a clean 3-D field sample passes 1.5 sigma 65 % of the
+    time, so a lone outlier costs on average half a sample more
+    (:func:`windahrs.aid.mag.fuse_field`).
 
     Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
     init_wind m/s, init_accel_bias m/s^2. init_yaw rad: the attitude's spread about the nav
@@ -392,6 +399,7 @@ class EskfParams:
     gate_mag: float = 5.0
     gate_gnss: float = 5.0
     gate_air: float = 5.0
+    mag_reentry_gate: float = 0.5
     init_att: float = 10.0 * DEG
     init_yaw: float = 0.0
     init_bias: float = 0.5 * DEG
