@@ -375,7 +375,7 @@ def test_a_fading_field_disturbance_meets_the_re_entry_gate() -> None:
     """The fault matrix's 20 uT field bump over 30 s on the quadrotor, seed 0: kept out at its
     height, the field re-entered the full gate at 5 sigma while still several uT off and
     turned the heading and the gyro bias, 13.2 s to recover; with the re-entry gate (half
-    the gate until a sample passes it, EskfParams.mag_reentry_gate) 1.3 s."""
+    the gate until the field has passed it for 0.5 s, EskfParams.mag_reentry_gate) 0 s."""
     from windahrs.experiments.faults import FaultCase, run_fault_matrix
 
     case = FaultCase("mag-drift-30s", (F.MagDrift(30.0, 30.0),))
@@ -385,9 +385,10 @@ def test_a_fading_field_disturbance_meets_the_re_entry_gate() -> None:
 
 
 def test_a_lone_field_outlier_costs_about_one_more_sample(fixedwing: Flight) -> None:
-    # ten one-sample +50 uT outliers: each is rejected, and the re-entry gate (half of
-    # ins-wind's gate_mag 3: 1.5 sigma per component) keeps out at most a few of the next
-    # samples (none here: the simulated field is cleaner than mag_sigma says)
+    # ten one-sample +50 uT outliers: each is rejected and arms the re-entry gate (half of
+    # ins-wind's gate_mag 3: 1.5 sigma per component for 0.5 s), which at the default
+    # mag_sigma keeps out none of the next samples (with mag_sigma at the simulator's true
+    # 0.5 uT, 153 more of 1500: docs/ROBUSTNESS.md section 10)
     spikes = [F.MagMagnet(start=3.0 + 2.5 * k, duration=0.015) for k in range(10)]
     est = _quiet_run("ins-wind", F.inject(fixedwing, spikes, seed=0))
     mag = est.innovations["mag"]

@@ -55,13 +55,13 @@ from windahrs.core.layout import (
     X_JMAG,
     X_MAGN,
     X_MBAR,
-    X_MFUSED,
     X_MGAIN,
     X_NMFUSE,
     X_Q,
     X_TMBAR,
     X_TMFUSE,
     X_TMOK,
+    X_TMPASS,
     X_TMREIN,
     X_TOK,
 )
@@ -265,13 +265,20 @@ def fuse_mag(cfg, prm, x, flags, P, work, sup, inn, acc, t, row):
     per_sample_nis(cfg, flags, inn, sensor, kf)
 
 
+#: How long, s, the field must pass the re-entry gate, with no sample beyond the full gate,
+#: to release it (:func:`fuse_field`): vqf's magMinUndisturbedTime, the time its field must
+#: stay within its thresholds before it is taken as undisturbed again.
+REENTRY_CLEAR = 0.5
+
+
 @njit(inline="always", **_JIT_CORE)
 def _kept_out(prm, x, t, beyond_full):
     """Remember that a field sample at t s was kept out, beyond the full gate (or by the
-    disturbance checks) or only by the re-entry gate (:func:`fuse_field`)."""
-    if beyond_full and (x[X_MFUSED] == 1.0 or t - x[X_TMREIN] <= prm["reset_timeout"]):
-        x[X_TMREIN] = t
-    x[X_MFUSED] = 0.0
+    disturbance checks), or only by the re-entry gate (:func:`fuse_field`)."""
+    if beyond_full:
+        if x[X_TMPASS] == x[X_TMPASS] or t - x[X_TMREIN] <= prm["reset_timeout"]:
+            x[X_TMREIN] = t
+        x[X_TMPASS] = np.nan
 
 
 @njit(inline="always", **_JIT_CORE)
@@ -279,27 +286,35 @@ def fuse_field(cfg, prm, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, kf)
     """_fuse with the magnetometer's gate, gate_mag^2 (times kf, the samples the mean stands
     for), or while it holds the re-entry gate's. Returns whether the sample was fused.
 
-    The re-entry gate (EskfParams.mag_reentry_gate, a share of gate_mag). Once a field sample that
-    followed a fused one is kept out (by the disturbance checks, or beyond gate_mag sigma),
-    the next samples must fall within the re-entry gate to be fused, until one does or until
-    reset_timeout has passed since the last sample beyond the full gate: a Schmitt trigger on
-    the innovation, as vqf holds a field it found disturbed out until it has been back within
-    its thresholds for magMinUndisturbedTime. A disturbance that fades slowly (a motor
-    current, a swinging payload) re-enters the full gate while still off by nearly gate_mag
-    sigma, and those last sigma turn the heading and the gyro bias: the fault matrix's
-    mag-drift-30s, a 20 uT bump over 30 s, left the simulated quadrotor 5-7 deg off in
-    heading after it had ended (docs/ROBUSTNESS.md section 9). Default half the gate: at
-    [ins-wind]'s gate_mag 3 (PX4's EKF2_MAG_GATE), 1.5 sigma, which a clean 3-D sample passes
-    65 % of the time (each of three components 87 %), so a lone outlier costs on average
-    half a sample more; 2.5 sigma (96 %) at the other filters' 5. The limit in time keeps a state
-    that drifted while the field was out from being held off a field the full gate would take
-    (the heading reset does not help there: the heading is not lost). A field not fused since
-    the start or since the heading was reset to one of its samples (a magnetometer that starts
-    late, the heading it gave not yet confirmed) meets the full gate."""
+    The re-entry gate (EskfParams.mag_reentry_gate, a share of gate_mag) is a Schmitt trigger
+    on the innovation. It arms when a field sample right after a fused one is kept out (by the
+    disturbance checks, or beyond gate_mag sigma). The samples must then fall within the
+    re-entry gate to be fused. It releases :data:`REENTRY_CLEAR` s after the first sample
+    that does, if none has gone beyond the full gate since, as vqf takes a field it found
+    disturbed as undisturbed again once it has stayed within its thresholds for
+    magMinUndisturbedTime; or reset_timeout after the last sample beyond the full gate, which
+    keeps a state that drifted while the field was out from being held off a field the full
+    gate would take (the heading reset does not help there: the heading is not lost). Arming
+    at once also keeps more of a disturbance's onset out, where its samples cross the gate
+    back and forth; arming only after REENTRY_CLEAR s kept out, which spares a lone outlier,
+    lost that (docs/ROBUSTNESS.md section 10).
+
+    Why: a disturbance that fades slowly (a motor current, a swinging payload) re-enters the
+    full gate while still off by nearly gate_mag sigma, and those last sigma turn the heading
+    and the gyro bias. The fault matrix's mag-drift-30s, a 20 uT bump over 30 s, left the
+    simulated quadrotor 5-7 deg off in heading after it had ended (docs/ROBUSTNESS.md
+    sections 9 and 10). Default half the gate: 1.5 sigma at [ins-wind]'s gate_mag 3 (PX4's
+    EKF2_MAG_GATE), which a clean 3-D sample passes 65 % of the time (each component 87 %);
+    2.5 sigma (96 %) at the other filters' 5. A field not fused since the start or since the
+    heading was reset to one of its samples (a magnetometer that starts late, the heading it
+    gave not yet confirmed) does not arm it."""
     g2 = prm["gate_mag2"] * kf
     rein = t - x[X_TMREIN] <= prm["reset_timeout"]
     if _fuse(cfg, x, flags, P, work, sup, inn, acc, sensor, t, m, ns, prm["mag_reentry_gate2"] * kf if rein else g2):
-        x[X_MFUSED], x[X_TMREIN] = 1.0, -np.inf
+        if x[X_TMPASS] != x[X_TMPASS]:  # (NaN: a new run of fused samples)
+            x[X_TMPASS] = t
+        if t - x[X_TMPASS] >= REENTRY_CLEAR:
+            x[X_TMREIN] = -np.inf
         return True
     _kept_out(prm, x, t, not (rein and within_gate(work[W_NU], work[W_S : W_S + 3], m, g2)))
     return False
@@ -421,7 +436,7 @@ def _reset_heading(cfg, prm, x, flags, inn, acc, P, work, t, d):
     x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3] = _qnormalize(q[0], q[1], q[2], q[3])
     set_attitude_cov(cfg, prm, x, P, work)
     log_reset(cfg, flags, inn, acc, work, x, np.int64(INN_MAG), t, abs(d))
-    x[X_MFUSED], x[X_TMREIN] = 0.0, -np.inf  # (a heading from one sample: no re-entry gate yet)
+    x[X_TMPASS], x[X_TMREIN] = np.nan, -np.inf  # (a heading from one sample: no re-entry gate yet)
 
 
 @njit(**_JIT_CORE)

@@ -136,6 +136,7 @@ from windahrs.core.layout import (
     X_TIMU,
     X_TINIT,
     X_TMOK,
+    X_TMPASS,
     X_TMREIN,
     X_TOK,
     X_TWIN0,
@@ -910,6 +911,7 @@ def make_state(
     x[X_TOK : X_TOK + N_SENSORS] = np.nan  # no reset clock before initialisation
     x[X_TMOK] = x[X_TGOK] = -np.inf  # no field nor GNSS velocity fused yet
     x[X_TMREIN] = -np.inf  # no magnetometer re-entry gate
+    x[X_TMPASS] = np.nan  # (no field fused yet)
     x[X_TINIT] = np.nan  # not initialised
     return KernelState(
         cfg=cfg,

@@ -370,11 +370,12 @@ X_TAIR = X_AVAR + 50
 X_TMOK = X_AVAR + 51
 #: When GNSS velocity last passed its gate, s (-inf: never since the start; aid.gnss_vel).
 X_TGOK = X_AVAR + 52
-#: The magnetometer's re-entry gate (aid.mag.fuse_field): 1 when the last field sample offered
-#: to its gates was fused, else 0 (0 at the start and after a heading reset); the last time a
-#: sample was kept out by the full gate or the disturbance checks after a fused one, s, from
-#: which the re-entry gate holds for reset_timeout (-inf: none).
-X_MFUSED = X_AVAR + 53
+#: The magnetometer's re-entry gate (aid.mag.fuse_field): when the field first passed its gate
+#: since the last sample beyond the full gate, s (NaN: none has; NaN at the start and after a
+#: heading reset); the last time a sample was kept out beyond the full gate (or by the
+#: disturbance checks) right after a fused one or while the re-entry gate held, s, from which
+#: the re-entry gate holds for reset_timeout (-inf: none).
+X_TMPASS = X_AVAR + 53
 X_TMREIN = X_AVAR + 54
 N_X = X_AVAR + 55
 

@@ -246,12 +246,12 @@ class EskfParams:
 
     Gates: a measurement is rejected when a component's innovation exceeds ``gate`` of its
     standard deviation (PX4's test ratio), per sensor. mag_reentry_gate, a share of gate_mag:
-    once a field sample that followed a fused one is kept out (a disturbance), the next must
-    be within mag_reentry_gate * gate_mag sigmas to be fused, until one is or reset_timeout
-    has passed since the last beyond gate_mag (1: no re-entry gate). Default 0.5: at
-    [ins-wind]'s gate_mag 3 (PX4's), a clean 3-D field sample passes 1.5 sigma 65 % of the
-    time, so a lone outlier costs on average half a sample more
-    (:func:`windahrs.aid.mag.fuse_field`).
+    once a field sample right after a fused one is kept out, the field must be within
+    mag_reentry_gate * gate_mag sigmas to be fused again, until it has passed that for 0.5 s
+    (vqf's magMinUndisturbedTime) or reset_timeout after the last sample beyond gate_mag
+    (1: no re-entry gate). Default 0.5: 1.5 sigma at [ins-wind]'s
+    gate_mag 3 (PX4's), which a clean 3-D field sample passes 65 % of the time
+    (:func:`windahrs.aid.mag.fuse_field`, docs/ROBUSTNESS.md section 10).
 
     Initial standard deviations: init_att rad (per axis), init_bias rad/s, init_v m/s,
     init_wind m/s, init_accel_bias m/s^2. init_yaw rad: the attitude's spread about the nav
